@@ -1,0 +1,34 @@
+// Decoupled look-back status words (64-bit, one atomic word per tile and digit):
+//   bits 34..63  tag: the run's epoch + pass (30 bits). A word from an earlier run never
+//                matches, so the status array is never cleared.
+//   bits 32..33  flag: 0 = nothing published, 1 = aggregate (this tile only),
+//                2 = inclusive prefix (this tile and every tile before it)
+//   bits  0..31  value
+// The value travels in the same atomic word as its flag, so readers need no
+// acquire/release ordering: relaxed atomics are enough on any conforming driver.
+#ifndef LOOKBACK_GLSL
+#define LOOKBACK_GLSL
+#define LB_AGGREGATE 1u
+#define LB_INCLUSIVE 2u
+
+uint64_t lb_pack(uint tag, uint flag, uint value) {
+    return (uint64_t(tag & 0x3fffffffu) << 34) | (uint64_t(flag) << 32) | uint64_t(value);
+}
+// Flag of `w` if it belongs to run `tag`, else 0 (not yet published in this run).
+uint lb_flag(uint64_t w, uint tag) {
+    return (uint(w >> 34) == (tag & 0x3fffffffu)) ? uint(w >> 32) & 3u : 0u;
+}
+uint lb_value(uint64_t w) { return uint(w); }
+
+// Workgroup-wide OR of `x`. Must be called in workgroup-uniform control flow.
+shared uint lb_vote;
+uint lb_workgroup_or(uint x) {
+    barrier();
+    if (gl_LocalInvocationIndex == 0) lb_vote = 0;
+    barrier();
+    uint sx = subgroupOr(x);
+    if (subgroupElect() && sx != 0) atomicOr(lb_vote, sx);
+    barrier();
+    return lb_vote;
+}
+#endif

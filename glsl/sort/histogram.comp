@@ -1,0 +1,44 @@
+#version 460
+// One pass over the keys builds the 256-bin histogram of every digit of the sort.
+#include "common.glsl"
+#include "pass_state.glsl"
+#define WG 256
+#define KPT 16
+layout(local_size_x = WG) in;
+
+layout(push_constant) uniform Push {
+    U64s keys;
+    U32s state;
+    uint lo;      // first bit sorted
+    uint hi;      // one past the last bit sorted
+    uint passes;  // ceil((hi - lo) / 8)
+    uint pad;
+} pc;
+
+shared uint s_hist[8 * 256];
+
+void main() {
+    uint t = gl_LocalInvocationID.x;
+    uint n = pc.state.v[ST_N];
+    uint base = linear_group_id() * (WG * KPT);
+    if (base >= n) return; // uniform across the workgroup
+    for (uint i = t; i < 8u * 256u; i += WG) s_hist[i] = 0u;
+    barrier();
+    for (uint r = 0u; r < KPT; r++) {
+        uint idx = base + r * WG + t;
+        if (idx < n) {
+            uint64_t key = pc.keys.v[idx];
+            for (uint p = 0u; p < pc.passes; p++) {
+                uint shift = pc.lo + 8u * p;
+                uint bits = min(8u, pc.hi - shift);
+                uint d = uint(key >> shift) & ((1u << bits) - 1u);
+                atomicAdd(s_hist[p * 256u + d], 1u);
+            }
+        }
+    }
+    barrier();
+    for (uint p = 0u; p < pc.passes; p++) {
+        uint c = s_hist[p * 256u + t];
+        if (c != 0u) atomicAdd(pc.state.v[ST_HIST + p * 256u + t], c);
+    }
+}

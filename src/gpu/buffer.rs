@@ -1,0 +1,281 @@
+//! Buffers: gpu-allocator memory, always addressable by device address
+//! (GL_EXT_buffer_reference), so arrays are not limited by `maxStorageBufferRange`.
+
+use ash::vk;
+use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
+use gpu_allocator::MemoryLocation;
+
+use super::context::{Context, Inner};
+use crate::error::{Error, Result};
+use std::sync::Arc;
+
+/// Where a buffer lives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Memory {
+    /// Device-local; reached from the host only through copies.
+    Device,
+    /// Host-visible, written by the host (uploads, parameters).
+    Upload,
+    /// Host-visible, read by the host (results, counters).
+    Readback,
+}
+
+/// A buffer usable as storage buffer (by device address), transfer source/destination
+/// and indirect-dispatch argument source. Freed on drop.
+pub struct Buffer {
+    inner: Arc<Inner>,
+    raw: vk::Buffer,
+    allocation: Option<Allocation>,
+    size: u64,
+    address: u64,
+    name: String,
+}
+
+impl Buffer {
+    pub fn raw(&self) -> vk::Buffer {
+        self.raw
+    }
+    /// Size in bytes as requested.
+    pub fn size(&self) -> u64 {
+        self.size
+    }
+    /// Device address of byte 0.
+    pub fn address(&self) -> u64 {
+        self.address
+    }
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+    /// The mapped bytes when the buffer is host-visible.
+    pub fn mapped(&self) -> Option<&[u8]> {
+        self.allocation
+            .as_ref()
+            .and_then(|a| a.mapped_slice())
+            .map(|s| &s[..self.size as usize])
+    }
+    pub fn mapped_mut(&mut self) -> Option<&mut [u8]> {
+        let size = self.size as usize;
+        self.allocation
+            .as_mut()
+            .and_then(|a| a.mapped_slice_mut())
+            .map(|s| &mut s[..size])
+    }
+}
+
+impl Drop for Buffer {
+    fn drop(&mut self) {
+        if let Some(a) = self.allocation.take() {
+            if let Ok(mut guard) = self.inner.allocator.lock() {
+                if let Some(alloc) = guard.as_mut() {
+                    let _ = alloc.free(a);
+                }
+            }
+        }
+        unsafe { self.inner.device.destroy_buffer(self.raw, None) };
+    }
+}
+
+impl Context {
+    /// Creates a buffer of `size` bytes (a zero size is rounded up to 16 bytes, Vulkan
+    /// forbids empty buffers). Fails with a clear error past the device's allocation
+    /// limit or when memory runs out; the device is never lost over it.
+    pub fn buffer(&self, name: &str, size: u64, memory: Memory) -> Result<Buffer> {
+        let inner = &self.inner;
+        let alloc_size = size.max(16).next_multiple_of(16);
+        let limit = inner.info.max_memory_allocation_size;
+        if limit > 0 && alloc_size > limit {
+            return Err(Error::TooLarge {
+                name: name.into(),
+                bytes: size,
+                limit,
+            });
+        }
+        let usage = vk::BufferUsageFlags::STORAGE_BUFFER
+            | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS
+            | vk::BufferUsageFlags::TRANSFER_SRC
+            | vk::BufferUsageFlags::TRANSFER_DST
+            | vk::BufferUsageFlags::INDIRECT_BUFFER;
+        let raw = unsafe {
+            inner.device.create_buffer(
+                &vk::BufferCreateInfo::default()
+                    .size(alloc_size)
+                    .usage(usage)
+                    .sharing_mode(vk::SharingMode::EXCLUSIVE),
+                None,
+            )
+        }
+        .map_err(|e| match e {
+            vk::Result::ERROR_OUT_OF_DEVICE_MEMORY | vk::Result::ERROR_OUT_OF_HOST_MEMORY => {
+                Error::OutOfMemory {
+                    name: name.into(),
+                    bytes: size,
+                    detail: e.to_string(),
+                }
+            }
+            e => Error::Vulkan {
+                call: "vkCreateBuffer",
+                result: e,
+            },
+        })?;
+        let requirements = unsafe { inner.device.get_buffer_memory_requirements(raw) };
+        let location = match memory {
+            Memory::Device => MemoryLocation::GpuOnly,
+            Memory::Upload => MemoryLocation::CpuToGpu,
+            Memory::Readback => MemoryLocation::GpuToCpu,
+        };
+        let allocation = {
+            let mut guard = inner
+                .allocator
+                .lock()
+                .map_err(|_| Error::Gpu("allocator lock poisoned".into()))?;
+            let alloc = guard
+                .as_mut()
+                .ok_or_else(|| Error::Gpu("allocator gone".into()))?;
+            alloc.allocate(&AllocationCreateDesc {
+                name,
+                requirements,
+                location,
+                linear: true,
+                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+            })
+        };
+        let allocation = match allocation {
+            Ok(a) => a,
+            Err(e) => {
+                unsafe { inner.device.destroy_buffer(raw, None) };
+                return Err(Error::OutOfMemory {
+                    name: name.into(),
+                    bytes: size,
+                    detail: e.to_string(),
+                });
+            }
+        };
+        if let Err(e) = unsafe {
+            inner
+                .device
+                .bind_buffer_memory(raw, allocation.memory(), allocation.offset())
+        } {
+            if let Ok(mut g) = inner.allocator.lock() {
+                if let Some(a) = g.as_mut() {
+                    let _ = a.free(allocation);
+                }
+            }
+            unsafe { inner.device.destroy_buffer(raw, None) };
+            return Err(Error::Vulkan {
+                call: "vkBindBufferMemory",
+                result: e,
+            });
+        }
+        let address = unsafe {
+            inner
+                .device
+                .get_buffer_device_address(&vk::BufferDeviceAddressInfo::default().buffer(raw))
+        };
+        self.set_name(raw, name);
+        Ok(Buffer {
+            inner: inner.clone(),
+            raw,
+            allocation: Some(allocation),
+            size,
+            address,
+            name: name.into(),
+        })
+    }
+
+    /// A device buffer holding `data`.
+    pub fn buffer_from<T: bytemuck::Pod>(&self, name: &str, data: &[T]) -> Result<Buffer> {
+        let buf = self.buffer(name, std::mem::size_of_val(data) as u64, Memory::Device)?;
+        self.upload(&buf, 0, data)?;
+        Ok(buf)
+    }
+
+    /// Copies `data` into `dst` at byte `offset` through a staging buffer and waits.
+    pub fn upload<T: bytemuck::Pod>(&self, dst: &Buffer, offset: u64, data: &[T]) -> Result<()> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        if bytes.is_empty() {
+            return Ok(());
+        }
+        if offset + bytes.len() as u64 > dst.size() {
+            return Err(Error::Invalid(format!(
+                "upload of {} bytes at {offset} overruns buffer `{}` ({} bytes)",
+                bytes.len(),
+                dst.name(),
+                dst.size()
+            )));
+        }
+        let mut staging = self.buffer("staging-upload", bytes.len() as u64, Memory::Upload)?;
+        staging
+            .mapped_mut()
+            .ok_or_else(|| Error::Gpu("upload staging buffer is not host-visible".into()))?
+            .copy_from_slice(bytes);
+        self.submit_and_wait(|cmd| {
+            let region = [vk::BufferCopy {
+                src_offset: 0,
+                dst_offset: offset,
+                size: bytes.len() as u64,
+            }];
+            unsafe {
+                self.device()
+                    .cmd_copy_buffer(cmd, staging.raw(), dst.raw(), &region)
+            };
+            Ok(())
+        })
+    }
+
+    /// Reads `count` elements of `T` from `src` at byte `offset` (waits for the copy).
+    pub fn download<T: bytemuck::Pod>(
+        &self,
+        src: &Buffer,
+        offset: u64,
+        count: usize,
+    ) -> Result<Vec<T>> {
+        let nbytes = (count * std::mem::size_of::<T>()) as u64;
+        if offset + nbytes > src.size() {
+            return Err(Error::Invalid(format!(
+                "download of {nbytes} bytes at {offset} overruns buffer `{}` ({} bytes)",
+                src.name(),
+                src.size()
+            )));
+        }
+        if count == 0 {
+            return Ok(Vec::new());
+        }
+        let staging = self.buffer("staging-readback", nbytes, Memory::Readback)?;
+        self.submit_and_wait(|cmd| {
+            let region = [vk::BufferCopy {
+                src_offset: offset,
+                dst_offset: 0,
+                size: nbytes,
+            }];
+            unsafe {
+                self.device()
+                    .cmd_copy_buffer(cmd, src.raw(), staging.raw(), &region)
+            };
+            Ok(())
+        })?;
+        let bytes = staging
+            .mapped()
+            .ok_or_else(|| Error::Gpu("readback staging buffer is not host-visible".into()))?;
+        let mut out = vec![T::zeroed(); count];
+        bytemuck::cast_slice_mut::<T, u8>(&mut out).copy_from_slice(bytes);
+        Ok(out)
+    }
+
+    /// Reads a whole buffer as `T`s.
+    pub fn download_all<T: bytemuck::Pod>(&self, src: &Buffer) -> Result<Vec<T>> {
+        self.download(src, 0, src.size() as usize / std::mem::size_of::<T>())
+    }
+
+    /// Bytes currently allocated by this context's allocator.
+    pub fn allocated_bytes(&self) -> u64 {
+        self.inner
+            .allocator
+            .lock()
+            .ok()
+            .and_then(|g| {
+                g.as_ref()
+                    .map(|a| a.generate_report().total_allocated_bytes)
+            })
+            .unwrap_or(0)
+    }
+}

@@ -1,0 +1,833 @@
+//! `Context`: the Vulkan instance/device the engine runs on, either created here (owned)
+//! or borrowed from a host engine that already has one.
+
+use std::ffi::{c_void, CStr, CString};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+
+use ash::vk;
+use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
+
+use crate::error::{Error, Result, VkContext};
+
+const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
+
+/// How to create an owned context.
+#[derive(Clone, Debug, Default)]
+pub struct ContextOptions {
+    /// Device to use: an index into `vkEnumeratePhysicalDevices` or a case-insensitive
+    /// substring of the device name. `None` reads `SVRASTER_DEVICE`, then picks
+    /// discrete > integrated > virtual > CPU.
+    pub device: Option<String>,
+    /// Enable `VK_LAYER_KHRONOS_validation` (with synchronization validation). Also
+    /// enabled by `SVRASTER_VALIDATION=1`. Every warning or error it reports is counted
+    /// (see [`Context::validation_messages`]).
+    pub validation: bool,
+}
+
+/// What the engine learned about its device.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct DeviceInfo {
+    pub name: String,
+    pub device_type: String,
+    pub driver_name: String,
+    pub driver_info: String,
+    pub api_version: String,
+    pub subgroup_size: u32,
+    pub max_storage_buffer_range: u64,
+    pub max_memory_allocation_size: u64,
+    pub max_compute_shared_memory_size: u32,
+    pub max_compute_work_group_count: [u32; 3],
+    pub max_compute_work_group_invocations: u32,
+    pub max_push_constants_size: u32,
+    pub timestamp_period_ns: f32,
+    pub device_local_heap_bytes: u64,
+    pub features_enabled: Vec<String>,
+    pub float_atomic_add: bool,
+    pub full_subgroups: bool,
+    pub is_cpu: bool,
+}
+
+/// Handles of a host engine's Vulkan objects, lent to the engine. The host keeps
+/// ownership: dropping the `Context` destroys nothing of these.
+///
+/// The host must have created the device with API ≥ 1.2 and the features listed by
+/// [`Context::required_device_features`]; `Context::borrowed` checks what it can.
+pub struct BorrowedHandles {
+    pub entry: ash::Entry,
+    pub instance: ash::Instance,
+    pub physical_device: vk::PhysicalDevice,
+    pub device: ash::Device,
+    pub queue_family_index: u32,
+    pub queue_index: u32,
+    /// Whether the host enabled `VK_EXT_debug_utils` on the instance (debug names).
+    pub debug_utils: bool,
+    /// Optional features the host enabled on the device (see `required_device_features`).
+    pub float_atomic_add: bool,
+    pub full_subgroups: bool,
+}
+
+pub(crate) struct ValidationLog {
+    count: AtomicU64,
+    messages: Mutex<Vec<String>>,
+}
+
+pub(crate) struct Inner {
+    _entry: ash::Entry,
+    pub instance: ash::Instance,
+    pub device: ash::Device,
+    pub queue: vk::Queue,
+    pub queue_family: u32,
+    pub allocator: Mutex<Option<Allocator>>,
+    pub debug_device: Option<ash::ext::debug_utils::Device>,
+    messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    validation: Option<*const ValidationLog>,
+    owned: bool,
+    pub info: DeviceInfo,
+    pub pipeline_cache: vk::PipelineCache,
+    /// Guards `queue` (Vulkan requires external synchronisation) and the command pool.
+    pub submit: Mutex<vk::CommandPool>,
+}
+
+// SAFETY: the raw ValidationLog pointer is only read through `&` and the log is Sync.
+unsafe impl Send for Inner {}
+unsafe impl Sync for Inner {}
+
+/// The Vulkan device the engine runs on. Cheap to clone (shared handle).
+#[derive(Clone)]
+pub struct Context {
+    pub(crate) inner: Arc<Inner>,
+}
+
+unsafe extern "system" fn debug_callback(
+    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
+    ty: vk::DebugUtilsMessageTypeFlagsEXT,
+    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
+    user: *mut c_void,
+) -> vk::Bool32 {
+    let msg = if data.is_null() || (*data).p_message.is_null() {
+        String::from("(no message)")
+    } else {
+        CStr::from_ptr((*data).p_message)
+            .to_string_lossy()
+            .into_owned()
+    };
+    let serious = severity.intersects(
+        vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
+            | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+    );
+    if serious && ty.contains(vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION) && !user.is_null() {
+        let log = &*(user as *const ValidationLog);
+        log.count.fetch_add(1, Ordering::SeqCst);
+        if let Ok(mut m) = log.messages.lock() {
+            m.push(msg.clone());
+        }
+        eprintln!("[vulkan validation] {msg}");
+    } else if serious {
+        eprintln!("[vulkan] {msg}");
+    }
+    vk::FALSE
+}
+
+fn env_flag(name: &str) -> bool {
+    std::env::var(name).is_ok_and(|v| !v.is_empty() && v != "0")
+}
+
+fn type_rank(t: vk::PhysicalDeviceType) -> u32 {
+    match t {
+        vk::PhysicalDeviceType::DISCRETE_GPU => 0,
+        vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
+        vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
+        vk::PhysicalDeviceType::CPU => 3,
+        _ => 4,
+    }
+}
+
+fn type_name(t: vk::PhysicalDeviceType) -> &'static str {
+    match t {
+        vk::PhysicalDeviceType::DISCRETE_GPU => "discrete GPU",
+        vk::PhysicalDeviceType::INTEGRATED_GPU => "integrated GPU",
+        vk::PhysicalDeviceType::VIRTUAL_GPU => "virtual GPU",
+        vk::PhysicalDeviceType::CPU => "CPU",
+        _ => "other",
+    }
+}
+
+fn version_string(v: u32) -> String {
+    format!(
+        "{}.{}.{}",
+        vk::api_version_major(v),
+        vk::api_version_minor(v),
+        vk::api_version_patch(v)
+    )
+}
+
+fn cstr_field(raw: &[std::ffi::c_char]) -> String {
+    // SAFETY: Vulkan fixed-size strings are NUL-terminated within their array.
+    unsafe { CStr::from_ptr(raw.as_ptr()) }
+        .to_string_lossy()
+        .into_owned()
+}
+
+/// Features a device must support, and which optional ones it has.
+struct Support {
+    missing: Vec<&'static str>,
+    float_atomic_add: bool,
+    full_subgroups: bool,
+}
+
+fn query_support(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> Support {
+    let props = unsafe { instance.get_physical_device_properties(pdev) };
+    let api = props.api_version;
+    let mut missing = Vec::new();
+    if api < vk::API_VERSION_1_2 {
+        missing.push("Vulkan 1.2");
+        return Support {
+            missing,
+            float_atomic_add: false,
+            full_subgroups: false,
+        };
+    }
+    let exts = unsafe { instance.enumerate_device_extension_properties(pdev) }.unwrap_or_default();
+    let has_ext = |name: &CStr| exts.iter().any(|e| e.extension_name_as_c_str() == Ok(name));
+    let has_atomic_float = has_ext(ash::ext::shader_atomic_float::NAME);
+
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+    let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
+    let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
+    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12);
+    if api >= vk::API_VERSION_1_3 {
+        f2 = f2.push_next(&mut f13);
+    }
+    if has_atomic_float {
+        f2 = f2.push_next(&mut fa);
+    }
+    unsafe { instance.get_physical_device_features2(pdev, &mut f2) };
+    let f10 = f2.features;
+    if f10.shader_int64 == 0 {
+        missing.push("shaderInt64");
+    }
+    if f12.buffer_device_address == 0 {
+        missing.push("bufferDeviceAddress");
+    }
+    if f12.shader_buffer_int64_atomics == 0 {
+        missing.push("shaderBufferInt64Atomics");
+    }
+    let mut sg = vk::PhysicalDeviceSubgroupProperties::default();
+    let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut sg);
+    unsafe { instance.get_physical_device_properties2(pdev, &mut p2) };
+    let need_ops = vk::SubgroupFeatureFlags::BASIC
+        | vk::SubgroupFeatureFlags::BALLOT
+        | vk::SubgroupFeatureFlags::ARITHMETIC
+        | vk::SubgroupFeatureFlags::VOTE;
+    if !sg.supported_stages.contains(vk::ShaderStageFlags::COMPUTE)
+        || !sg.supported_operations.contains(need_ops)
+    {
+        missing.push("subgroup basic/vote/ballot/arithmetic in compute");
+    }
+    if !(8..=128).contains(&sg.subgroup_size) {
+        missing.push("subgroup size in 8..=128");
+    }
+    if props.limits.timestamp_compute_and_graphics == 0 {
+        missing.push("timestampComputeAndGraphics");
+    }
+    let full_subgroups = api >= vk::API_VERSION_1_3
+        && f13.subgroup_size_control != 0
+        && f13.compute_full_subgroups != 0;
+    let float_atomic_add = has_atomic_float
+        && fa.shader_buffer_float32_atomics != 0
+        && fa.shader_buffer_float32_atomic_add != 0;
+    Support {
+        missing,
+        float_atomic_add,
+        full_subgroups,
+    }
+}
+
+fn compute_queue_family(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> Option<u32> {
+    let fams = unsafe { instance.get_physical_device_queue_family_properties(pdev) };
+    // Prefer a compute queue that also does graphics (the universal queue): it has
+    // timestamps everywhere; any compute queue with timestamps otherwise.
+    let ok = |f: &vk::QueueFamilyProperties| {
+        f.queue_flags.contains(vk::QueueFlags::COMPUTE) && f.timestamp_valid_bits > 0
+    };
+    fams.iter()
+        .position(|f| ok(f) && f.queue_flags.contains(vk::QueueFlags::GRAPHICS))
+        .or_else(|| fams.iter().position(ok))
+        .map(|i| i as u32)
+}
+
+impl Context {
+    /// Creates an owned instance and device.
+    pub fn new(opts: &ContextOptions) -> Result<Self> {
+        let entry = unsafe { ash::Entry::load() }.map_err(|e| Error::Loader(e.to_string()))?;
+        let validation = opts.validation || env_flag("SVRASTER_VALIDATION");
+        let loader_api = unsafe { entry.try_enumerate_instance_version() }
+            .vk("vkEnumerateInstanceVersion")?
+            .unwrap_or(vk::API_VERSION_1_0);
+        if loader_api < vk::API_VERSION_1_2 {
+            return Err(Error::NoDevice(format!(
+                "the Vulkan loader supports only API {}; 1.2 or newer is required",
+                version_string(loader_api)
+            )));
+        }
+        let api = loader_api.min(vk::API_VERSION_1_3);
+
+        let mut layers: Vec<*const std::ffi::c_char> = Vec::new();
+        let mut exts: Vec<*const std::ffi::c_char> = Vec::new();
+        let inst_exts = unsafe { entry.enumerate_instance_extension_properties(None) }
+            .vk("vkEnumerateInstanceExtensionProperties")?;
+        let has_debug_utils = inst_exts
+            .iter()
+            .any(|e| e.extension_name_as_c_str() == Ok(ash::ext::debug_utils::NAME));
+        let mut use_validation_features = false;
+        if validation {
+            let avail = unsafe { entry.enumerate_instance_layer_properties() }
+                .vk("vkEnumerateInstanceLayerProperties")?;
+            if !avail
+                .iter()
+                .any(|l| l.layer_name_as_c_str() == Ok(VALIDATION_LAYER))
+            {
+                return Err(Error::NoValidationLayer);
+            }
+            layers.push(VALIDATION_LAYER.as_ptr());
+            let lexts =
+                unsafe { entry.enumerate_instance_extension_properties(Some(VALIDATION_LAYER)) }
+                    .unwrap_or_default();
+            if lexts
+                .iter()
+                .any(|e| e.extension_name_as_c_str() == Ok(ash::ext::validation_features::NAME))
+            {
+                exts.push(ash::ext::validation_features::NAME.as_ptr());
+                use_validation_features = true;
+            }
+        }
+        let debug_utils = has_debug_utils || validation;
+        if debug_utils {
+            exts.push(ash::ext::debug_utils::NAME.as_ptr());
+        }
+
+        let log = Box::into_raw(Box::new(ValidationLog {
+            count: AtomicU64::new(0),
+            messages: Mutex::new(Vec::new()),
+        }));
+        let app = vk::ApplicationInfo::default()
+            .application_name(c"svraster")
+            .engine_name(c"svraster-vk")
+            .api_version(api);
+        let mut messenger_ci = vk::DebugUtilsMessengerCreateInfoEXT::default()
+            .message_severity(
+                vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
+                    | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+            )
+            .message_type(
+                vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                    | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                    | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+            )
+            .pfn_user_callback(Some(debug_callback))
+            .user_data(log as *mut c_void);
+        let enables = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
+        let mut vfeat = vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
+        let mut ici = vk::InstanceCreateInfo::default()
+            .application_info(&app)
+            .enabled_layer_names(&layers)
+            .enabled_extension_names(&exts);
+        if validation {
+            ici = ici.push_next(&mut messenger_ci);
+            if use_validation_features {
+                ici = ici.push_next(&mut vfeat);
+            }
+        }
+        let instance = match unsafe { entry.create_instance(&ici, None) } {
+            Ok(i) => i,
+            Err(e) => {
+                drop(unsafe { Box::from_raw(log) });
+                return Err(Error::Vulkan {
+                    call: "vkCreateInstance",
+                    result: e,
+                });
+            }
+        };
+        // From here on, failures must destroy the instance.
+        let result = Self::finish_owned(
+            &entry,
+            &instance,
+            opts,
+            validation,
+            debug_utils,
+            log,
+            &messenger_ci,
+        );
+        match result {
+            Ok(ctx) => Ok(ctx),
+            Err(e) => {
+                unsafe { instance.destroy_instance(None) };
+                drop(unsafe { Box::from_raw(log) });
+                Err(e)
+            }
+        }
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn finish_owned(
+        entry: &ash::Entry,
+        instance: &ash::Instance,
+        opts: &ContextOptions,
+        validation: bool,
+        debug_utils: bool,
+        log: *mut ValidationLog,
+        messenger_ci: &vk::DebugUtilsMessengerCreateInfoEXT<'_>,
+    ) -> Result<Self> {
+        let pdevs =
+            unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
+        if pdevs.is_empty() {
+            return Err(Error::NoDevice(
+                "the Vulkan loader found no device. Install a driver; for a CPU device: `apt-get install mesa-vulkan-drivers` (lavapipe)".into(),
+            ));
+        }
+        let selector = opts.device.clone().or_else(|| {
+            std::env::var("SVRASTER_DEVICE")
+                .ok()
+                .filter(|s| !s.is_empty())
+        });
+        let described: Vec<(vk::PhysicalDevice, String, vk::PhysicalDeviceType)> = pdevs
+            .iter()
+            .map(|&p| {
+                let pr = unsafe { instance.get_physical_device_properties(p) };
+                (p, cstr_field(&pr.device_name), pr.device_type)
+            })
+            .collect();
+        let list = described
+            .iter()
+            .enumerate()
+            .map(|(i, (_, n, t))| format!("[{i}] {n} ({})", type_name(*t)))
+            .collect::<Vec<_>>()
+            .join(", ");
+        let pdev = if let Some(sel) = selector {
+            let found = match sel.parse::<usize>() {
+                Ok(i) => described.get(i).map(|d| d.0),
+                Err(_) => described
+                    .iter()
+                    .find(|d| d.1.to_lowercase().contains(&sel.to_lowercase()))
+                    .map(|d| d.0),
+            };
+            let p = found.ok_or_else(|| {
+                Error::NoDevice(format!("no device matches `{sel}`; available: {list}"))
+            })?;
+            let s = query_support(instance, p);
+            if !s.missing.is_empty() {
+                let name = described
+                    .iter()
+                    .find(|d| d.0 == p)
+                    .map(|d| d.1.clone())
+                    .unwrap_or_default();
+                return Err(Error::MissingFeatures {
+                    device: name,
+                    missing: s.missing.join(", "),
+                });
+            }
+            p
+        } else {
+            let mut cands: Vec<_> = described
+                .iter()
+                .filter(|d| {
+                    query_support(instance, d.0).missing.is_empty()
+                        && compute_queue_family(instance, d.0).is_some()
+                })
+                .collect();
+            cands.sort_by_key(|d| type_rank(d.2));
+            match cands.first() {
+                Some(d) => d.0,
+                None => {
+                    let why = described
+                        .iter()
+                        .map(|d| {
+                            format!(
+                                "{}: missing {}",
+                                d.1,
+                                query_support(instance, d.0).missing.join(", ")
+                            )
+                        })
+                        .collect::<Vec<_>>()
+                        .join("; ");
+                    return Err(Error::NoDevice(format!(
+                        "no device has the required features ({why})"
+                    )));
+                }
+            }
+        };
+        let support = query_support(instance, pdev);
+        let qf = compute_queue_family(instance, pdev).ok_or_else(|| {
+            Error::NoDevice("the device has no compute queue with timestamps".into())
+        })?;
+
+        let prio = [1.0f32];
+        let qci = [vk::DeviceQueueCreateInfo::default()
+            .queue_family_index(qf)
+            .queue_priorities(&prio)];
+        let mut dev_exts: Vec<*const std::ffi::c_char> = Vec::new();
+        if support.float_atomic_add {
+            dev_exts.push(ash::ext::shader_atomic_float::NAME.as_ptr());
+        }
+        let f10 = vk::PhysicalDeviceFeatures::default().shader_int64(true);
+        let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
+            .buffer_device_address(true)
+            .shader_buffer_int64_atomics(true);
+        let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
+            .subgroup_size_control(true)
+            .compute_full_subgroups(true);
+        let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
+            .shader_buffer_float32_atomics(true)
+            .shader_buffer_float32_atomic_add(true);
+        let mut f2 = vk::PhysicalDeviceFeatures2::default()
+            .features(f10)
+            .push_next(&mut f12);
+        if support.full_subgroups {
+            f2 = f2.push_next(&mut f13);
+        }
+        if support.float_atomic_add {
+            f2 = f2.push_next(&mut fa);
+        }
+        let dci = vk::DeviceCreateInfo::default()
+            .queue_create_infos(&qci)
+            .enabled_extension_names(&dev_exts)
+            .push_next(&mut f2);
+        let device = unsafe { instance.create_device(pdev, &dci, None) }.vk("vkCreateDevice")?;
+
+        let messenger = if validation {
+            let du = ash::ext::debug_utils::Instance::new(entry, instance);
+            match unsafe { du.create_debug_utils_messenger(messenger_ci, None) } {
+                Ok(m) => Some((du, m)),
+                Err(e) => {
+                    unsafe { device.destroy_device(None) };
+                    return Err(Error::Vulkan {
+                        call: "vkCreateDebugUtilsMessengerEXT",
+                        result: e,
+                    });
+                }
+            }
+        } else {
+            None
+        };
+        let handles = BorrowedHandles {
+            entry: entry.clone(),
+            instance: instance.clone(),
+            physical_device: pdev,
+            device,
+            queue_family_index: qf,
+            queue_index: 0,
+            debug_utils,
+            float_atomic_add: support.float_atomic_add,
+            full_subgroups: support.full_subgroups,
+        };
+        Self::build(
+            handles,
+            true,
+            messenger,
+            if validation {
+                Some(log as *const _)
+            } else {
+                None
+            },
+        )
+    }
+
+    /// Borrows a host engine's instance, device and queue. Nothing of the host's is
+    /// destroyed when the context drops; the host must keep them alive longer and must
+    /// not use the same queue from another thread while the engine submits to it.
+    pub fn borrowed(handles: BorrowedHandles) -> Result<Self> {
+        let s = query_support(&handles.instance, handles.physical_device);
+        if !s.missing.is_empty() {
+            let pr = unsafe {
+                handles
+                    .instance
+                    .get_physical_device_properties(handles.physical_device)
+            };
+            return Err(Error::MissingFeatures {
+                device: cstr_field(&pr.device_name),
+                missing: s.missing.join(", "),
+            });
+        }
+        if handles.float_atomic_add && !s.float_atomic_add {
+            return Err(Error::Invalid(
+                "float_atomic_add claimed but the device lacks it".into(),
+            ));
+        }
+        Self::build(handles, false, None, None)
+    }
+
+    /// Instance extensions, device extensions and features a host must enable on the
+    /// device it lends (see [`Context::borrowed`]). Returned as names for documentation
+    /// and error messages; the feature structs are those of `Context::new`.
+    pub fn required_device_features() -> &'static [&'static str] {
+        &[
+            "Vulkan 1.2",
+            "shaderInt64",
+            "bufferDeviceAddress",
+            "shaderBufferInt64Atomics",
+            "subgroup basic/vote/ballot/arithmetic in compute",
+            "optional: VK_EXT_shader_atomic_float shaderBufferFloat32AtomicAdd",
+            "optional: Vulkan 1.3 subgroupSizeControl + computeFullSubgroups",
+        ]
+    }
+
+    fn build(
+        h: BorrowedHandles,
+        owned: bool,
+        messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+        validation: Option<*const ValidationLog>,
+    ) -> Result<Self> {
+        let instance = h.instance;
+        let pdev = h.physical_device;
+        let device = h.device;
+        let cleanup = |device: &ash::Device| {
+            if owned {
+                unsafe { device.destroy_device(None) };
+            }
+        };
+        let mut sg = vk::PhysicalDeviceSubgroupProperties::default();
+        let mut drv = vk::PhysicalDeviceDriverProperties::default();
+        let mut m3 = vk::PhysicalDeviceMaintenance3Properties::default();
+        let mut p2 = vk::PhysicalDeviceProperties2::default()
+            .push_next(&mut sg)
+            .push_next(&mut drv)
+            .push_next(&mut m3);
+        unsafe { instance.get_physical_device_properties2(pdev, &mut p2) };
+        let props = p2.properties;
+        let mem = unsafe { instance.get_physical_device_memory_properties(pdev) };
+        let device_local_heap_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
+            .iter()
+            .filter(|h| h.flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+            .map(|h| h.size)
+            .max()
+            .unwrap_or(0);
+        let mut features_enabled: Vec<String> = [
+            "shaderInt64",
+            "bufferDeviceAddress",
+            "shaderBufferInt64Atomics",
+            "subgroup basic/vote/ballot/arithmetic",
+        ]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+        if h.full_subgroups {
+            features_enabled.push("subgroupSizeControl+computeFullSubgroups".into());
+        }
+        if h.float_atomic_add {
+            features_enabled.push("shaderBufferFloat32AtomicAdd".into());
+        }
+        let info = DeviceInfo {
+            name: cstr_field(&props.device_name),
+            device_type: type_name(props.device_type).into(),
+            driver_name: cstr_field(&drv.driver_name),
+            driver_info: cstr_field(&drv.driver_info),
+            api_version: version_string(props.api_version),
+            subgroup_size: sg.subgroup_size,
+            max_storage_buffer_range: props.limits.max_storage_buffer_range as u64,
+            max_memory_allocation_size: m3.max_memory_allocation_size,
+            max_compute_shared_memory_size: props.limits.max_compute_shared_memory_size,
+            max_compute_work_group_count: props.limits.max_compute_work_group_count,
+            max_compute_work_group_invocations: props.limits.max_compute_work_group_invocations,
+            max_push_constants_size: props.limits.max_push_constants_size,
+            timestamp_period_ns: props.limits.timestamp_period,
+            device_local_heap_bytes,
+            features_enabled,
+            float_atomic_add: h.float_atomic_add,
+            full_subgroups: h.full_subgroups,
+            is_cpu: props.device_type == vk::PhysicalDeviceType::CPU,
+        };
+        let allocator = match Allocator::new(&AllocatorCreateDesc {
+            instance: instance.clone(),
+            device: device.clone(),
+            physical_device: pdev,
+            debug_settings: Default::default(),
+            buffer_device_address: true,
+            allocation_sizes: Default::default(),
+        }) {
+            Ok(a) => a,
+            Err(e) => {
+                cleanup(&device);
+                return Err(Error::NoDevice(format!("gpu-allocator: {e}")));
+            }
+        };
+        let queue = unsafe { device.get_device_queue(h.queue_family_index, h.queue_index) };
+        let pool = match unsafe {
+            device.create_command_pool(
+                &vk::CommandPoolCreateInfo::default()
+                    .queue_family_index(h.queue_family_index)
+                    .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
+                None,
+            )
+        } {
+            Ok(p) => p,
+            Err(e) => {
+                drop(allocator);
+                cleanup(&device);
+                return Err(Error::Vulkan {
+                    call: "vkCreateCommandPool",
+                    result: e,
+                });
+            }
+        };
+        let pipeline_cache =
+            unsafe { device.create_pipeline_cache(&vk::PipelineCacheCreateInfo::default(), None) }
+                .unwrap_or(vk::PipelineCache::null());
+        let debug_device = if h.debug_utils {
+            Some(ash::ext::debug_utils::Device::new(&instance, &device))
+        } else {
+            None
+        };
+        Ok(Context {
+            inner: Arc::new(Inner {
+                _entry: h.entry,
+                instance,
+                device,
+                queue,
+                queue_family: h.queue_family_index,
+                allocator: Mutex::new(Some(allocator)),
+                debug_device,
+                messenger,
+                validation,
+                owned,
+                info,
+                pipeline_cache,
+                submit: Mutex::new(pool),
+            }),
+        })
+    }
+
+    pub fn info(&self) -> &DeviceInfo {
+        &self.inner.info
+    }
+    pub fn device(&self) -> &ash::Device {
+        &self.inner.device
+    }
+    pub fn queue_family(&self) -> u32 {
+        self.inner.queue_family
+    }
+    /// Whether this context created the device (as opposed to borrowing a host's).
+    pub fn is_owned(&self) -> bool {
+        self.inner.owned
+    }
+
+    /// Number of validation warnings/errors reported so far (0 when validation is off).
+    pub fn validation_messages(&self) -> u64 {
+        self.inner
+            .validation
+            .map(|p| unsafe { &*p }.count.load(Ordering::SeqCst))
+            .unwrap_or(0)
+    }
+    /// The text of the validation messages reported so far.
+    pub fn validation_log(&self) -> Vec<String> {
+        self.inner
+            .validation
+            .and_then(|p| unsafe { &*p }.messages.lock().ok().map(|m| m.clone()))
+            .unwrap_or_default()
+    }
+    pub fn validation_enabled(&self) -> bool {
+        self.inner.validation.is_some()
+    }
+
+    /// Gives a Vulkan object a debug name (visible in validation messages and tools).
+    pub fn set_name<H: vk::Handle>(&self, handle: H, name: &str) {
+        if let Some(du) = &self.inner.debug_device {
+            if let Ok(c) = CString::new(name) {
+                let info = vk::DebugUtilsObjectNameInfoEXT::default()
+                    .object_handle(handle)
+                    .object_name(&c);
+                let _ = unsafe { du.set_debug_utils_object_name(&info) };
+            }
+        }
+    }
+
+    /// Records commands with `f` into a fresh primary command buffer, submits it and
+    /// waits for it. For tools, tests and uploads; an embedding engine records into its
+    /// own command buffers instead.
+    pub fn submit_and_wait<R>(&self, f: impl FnOnce(vk::CommandBuffer) -> Result<R>) -> Result<R> {
+        let dev = &self.inner.device;
+        let pool = self
+            .inner
+            .submit
+            .lock()
+            .map_err(|_| Error::Gpu("submit lock poisoned".into()))?;
+        let cmd = unsafe {
+            dev.allocate_command_buffers(
+                &vk::CommandBufferAllocateInfo::default()
+                    .command_pool(*pool)
+                    .level(vk::CommandBufferLevel::PRIMARY)
+                    .command_buffer_count(1),
+            )
+        }
+        .vk("vkAllocateCommandBuffers")?[0];
+        let fence = match unsafe { dev.create_fence(&vk::FenceCreateInfo::default(), None) } {
+            Ok(f) => f,
+            Err(e) => {
+                unsafe { dev.free_command_buffers(*pool, &[cmd]) };
+                return Err(Error::Vulkan {
+                    call: "vkCreateFence",
+                    result: e,
+                });
+            }
+        };
+        let run = || -> Result<R> {
+            unsafe {
+                dev.begin_command_buffer(
+                    cmd,
+                    &vk::CommandBufferBeginInfo::default()
+                        .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
+                )
+            }
+            .vk("vkBeginCommandBuffer")?;
+            let r = f(cmd)?;
+            unsafe { dev.end_command_buffer(cmd) }.vk("vkEndCommandBuffer")?;
+            let cmds = [cmd];
+            let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
+            unsafe { dev.queue_submit(self.inner.queue, &submit, fence) }.vk("vkQueueSubmit")?;
+            unsafe { dev.wait_for_fences(&[fence], true, u64::MAX) }.vk("vkWaitForFences")?;
+            Ok(r)
+        };
+        let r = run();
+        unsafe {
+            dev.destroy_fence(fence, None);
+            dev.free_command_buffers(*pool, &[cmd]);
+        }
+        r
+    }
+
+    /// Fails if validation reported anything (tests call this at the end).
+    pub fn check_validation(&self) -> Result<()> {
+        match self.validation_messages() {
+            0 => Ok(()),
+            n => Err(Error::Validation(n)),
+        }
+    }
+}
+
+impl Drop for Inner {
+    fn drop(&mut self) {
+        unsafe {
+            let _ = self.device.device_wait_idle();
+            if let Ok(pool) = self.submit.lock() {
+                self.device.destroy_command_pool(*pool, None);
+            }
+            if self.pipeline_cache != vk::PipelineCache::null() {
+                self.device
+                    .destroy_pipeline_cache(self.pipeline_cache, None);
+            }
+            if let Ok(mut a) = self.allocator.lock() {
+                a.take();
+            }
+            if self.owned {
+                self.device.destroy_device(None);
+                if let Some((du, m)) = self.messenger.take() {
+                    du.destroy_debug_utils_messenger(m, None);
+                }
+                self.instance.destroy_instance(None);
+                if let Some(log) = self.validation.take() {
+                    drop(Box::from_raw(log as *mut ValidationLog));
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,172 @@
+//! Compute kernels: one pipeline per GLSL file. Kernels take their data through a
+//! push-constant block holding buffer device addresses and scalars; the Rust mirror of
+//! that block is checked against the size reflected from the SPIR-V at compile time
+//! (see [`push_constants!`](crate::push_constants)).
+
+use std::sync::Arc;
+
+use ash::vk;
+
+use super::context::{Context, Inner};
+use crate::error::{Error, Result, VkContext};
+
+/// A compiled kernel as emitted by `build.rs` (see `gpu::kernels`).
+#[derive(Debug)]
+pub struct KernelSource {
+    /// Path below `glsl/` without extension, e.g. `sort/onesweep`.
+    pub name: &'static str,
+    /// SPIR-V bytes.
+    pub spirv: &'static [u8],
+    /// `local_size_{x,y,z}` of the shader.
+    pub local_size: [u32; 3],
+    /// Bytes of the push-constant block (0 if none).
+    pub push_size: u32,
+}
+
+/// Declares the `#[repr(C)]` Rust mirror of a kernel's push-constant block and checks,
+/// at compile time, that its size equals the block's size in the SPIR-V.
+#[macro_export]
+macro_rules! push_constants {
+    ($ty:ty, $src:expr) => {
+        const _: () = assert!(
+            ::std::mem::size_of::<$ty>() == $src.push_size as usize,
+            concat!(
+                "push-constant mirror ",
+                stringify!($ty),
+                " does not match its GLSL block"
+            )
+        );
+    };
+}
+
+/// A compute pipeline and its layout.
+pub struct Kernel {
+    inner: Arc<Inner>,
+    pub(crate) source: &'static KernelSource,
+    pipeline: vk::Pipeline,
+    layout: vk::PipelineLayout,
+}
+
+impl Kernel {
+    pub fn new(ctx: &Context, source: &'static KernelSource) -> Result<Self> {
+        let dev = ctx.device();
+        let code = ash::util::read_spv(&mut std::io::Cursor::new(source.spirv))
+            .map_err(|e| Error::Gpu(format!("kernel {}: bad SPIR-V: {e}", source.name)))?;
+        let module = unsafe {
+            dev.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None)
+        }
+        .vk("vkCreateShaderModule")?;
+        let ranges = [vk::PushConstantRange {
+            stage_flags: vk::ShaderStageFlags::COMPUTE,
+            offset: 0,
+            size: source.push_size,
+        }];
+        let lci = if source.push_size > 0 {
+            vk::PipelineLayoutCreateInfo::default().push_constant_ranges(&ranges)
+        } else {
+            vk::PipelineLayoutCreateInfo::default()
+        };
+        let layout = match unsafe { dev.create_pipeline_layout(&lci, None) } {
+            Ok(l) => l,
+            Err(e) => {
+                unsafe { dev.destroy_shader_module(module, None) };
+                return Err(Error::Vulkan {
+                    call: "vkCreatePipelineLayout",
+                    result: e,
+                });
+            }
+        };
+        let full = ctx.info().full_subgroups
+            && source.local_size[0] * source.local_size[1] * source.local_size[2] >= 128;
+        let flags = if full {
+            vk::PipelineShaderStageCreateFlags::REQUIRE_FULL_SUBGROUPS
+        } else {
+            vk::PipelineShaderStageCreateFlags::empty()
+        };
+        let stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::COMPUTE)
+            .flags(flags)
+            .module(module)
+            .name(c"main");
+        let ci = [vk::ComputePipelineCreateInfo::default()
+            .stage(stage)
+            .layout(layout)];
+        let res = unsafe { dev.create_compute_pipelines(ctx.inner.pipeline_cache, &ci, None) };
+        unsafe { dev.destroy_shader_module(module, None) };
+        let pipeline = match res {
+            Ok(p) => p[0],
+            Err((_, e)) => {
+                unsafe { dev.destroy_pipeline_layout(layout, None) };
+                return Err(Error::Vulkan {
+                    call: "vkCreateComputePipelines",
+                    result: e,
+                });
+            }
+        };
+        ctx.set_name(pipeline, source.name);
+        Ok(Kernel {
+            inner: ctx.inner.clone(),
+            source,
+            pipeline,
+            layout,
+        })
+    }
+
+    pub fn name(&self) -> &'static str {
+        self.source.name
+    }
+    pub fn local_size(&self) -> [u32; 3] {
+        self.source.local_size
+    }
+
+    fn bind<P: bytemuck::Pod>(&self, cmd: vk::CommandBuffer, push: &P) {
+        debug_assert_eq!(std::mem::size_of::<P>(), self.source.push_size as usize);
+        let dev = &self.inner.device;
+        unsafe {
+            dev.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::COMPUTE, self.pipeline);
+            if self.source.push_size > 0 {
+                dev.cmd_push_constants(
+                    cmd,
+                    self.layout,
+                    vk::ShaderStageFlags::COMPUTE,
+                    0,
+                    bytemuck::bytes_of(push),
+                );
+            }
+        }
+    }
+
+    /// Records a dispatch of `groups` workgroups.
+    pub fn dispatch<P: bytemuck::Pod>(&self, cmd: vk::CommandBuffer, push: &P, groups: [u32; 3]) {
+        if groups.contains(&0) {
+            return;
+        }
+        self.bind(cmd, push);
+        unsafe {
+            self.inner
+                .device
+                .cmd_dispatch(cmd, groups[0], groups[1], groups[2])
+        };
+    }
+
+    /// Records an indirect dispatch reading `VkDispatchIndirectCommand` at `offset`.
+    pub fn dispatch_indirect<P: bytemuck::Pod>(
+        &self,
+        cmd: vk::CommandBuffer,
+        push: &P,
+        args: vk::Buffer,
+        offset: u64,
+    ) {
+        self.bind(cmd, push);
+        unsafe { self.inner.device.cmd_dispatch_indirect(cmd, args, offset) };
+    }
+}
+
+impl Drop for Kernel {
+    fn drop(&mut self) {
+        unsafe {
+            self.inner.device.destroy_pipeline(self.pipeline, None);
+            self.inner.device.destroy_pipeline_layout(self.layout, None);
+        }
+    }
+}

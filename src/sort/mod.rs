@@ -1,0 +1,438 @@
+//! Onesweep radix sort of u64 keys with u32 values (stable, any bit range), recorded
+//! into any command buffer with no host read-back; the element count can come from a
+//! GPU buffer (indirect dispatch). See `glsl/sort/onesweep.comp` for the algorithm.
+//!
+//! Per sort: `setup` (count, dispatch arguments, epoch) → `histogram` (all digits at
+//! once) → `hist_scan` (global digit offsets) → one `onesweep` pass per 8-bit digit,
+//! ping-ponging between the caller's primary and alternate buffers.
+
+use std::ops::Range;
+
+use ash::vk;
+use bytemuck::{Pod, Zeroable};
+
+use crate::error::{Error, Result};
+use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
+use crate::push_constants;
+
+/// Elements per onesweep tile (WG × KPT in onesweep.comp).
+pub const SORT_TILE: u32 = 128 * 16;
+/// Keys per histogram workgroup (WG × KPT in histogram.comp).
+const HIST_CHUNK: u32 = 256 * 16;
+/// Words of the state buffer (ST_WORDS in pass_state.glsl).
+pub(crate) const STATE_WORDS: usize = 32 + 8 * 256;
+pub(crate) const ST_N: usize = 0;
+pub(crate) const ST_REQUESTED: usize = 1;
+pub(crate) const ST_ERRORS: usize = 3;
+pub(crate) const ST_TOTAL: usize = 4;
+pub(crate) const ST_ARGS_TILES: u64 = 16 * 4;
+const ST_ARGS_CHUNKS: u64 = 20 * 4;
+/// Error bits of the state buffer.
+pub const ERR_OVERFLOW: u32 = 1;
+pub const ERR_LOOKBACK: u32 = 2;
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+pub(crate) struct SetupPush {
+    pub count: u64,
+    pub state: u64,
+    pub n: u32,
+    pub capacity: u32,
+    pub tile_size: u32,
+    pub chunk_size: u32,
+    pub max_groups_x: u32,
+    pub hist_words: u32,
+}
+push_constants!(SetupPush, kernels::SORT_SETUP);
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct HistPush {
+    keys: u64,
+    state: u64,
+    lo: u32,
+    hi: u32,
+    passes: u32,
+    pad: u32,
+}
+push_constants!(HistPush, kernels::SORT_HISTOGRAM);
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct HistScanPush {
+    state: u64,
+    passes: u32,
+    pad: u32,
+}
+push_constants!(HistScanPush, kernels::SORT_HIST_SCAN);
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct PassPush {
+    keys_in: u64,
+    vals_in: u64,
+    keys_out: u64,
+    vals_out: u64,
+    state: u64,
+    status: u64,
+    shift: u32,
+    bits: u32,
+    pass_index: u32,
+    spin_limit: u32,
+}
+push_constants!(PassPush, kernels::SORT_ONESWEEP);
+
+/// Where the element count of a run comes from.
+#[derive(Clone, Copy)]
+pub enum Count<'a> {
+    /// Known when recording.
+    Host(u32),
+    /// A u32 at byte `offset` of `buffer`, written by earlier GPU work.
+    Device { buffer: &'a Buffer, offset: u64 },
+}
+
+/// Keys and values to sort, and same-sized scratch buffers for the ping-pong.
+pub struct SortBuffers<'a> {
+    pub keys: &'a Buffer,
+    pub values: &'a Buffer,
+    pub keys_alt: &'a Buffer,
+    pub values_alt: &'a Buffer,
+}
+
+/// Which pair of buffers holds the sorted result.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Sorted {
+    Primary,
+    Alternate,
+}
+
+/// Number of 8-bit digit passes for a bit range.
+pub fn passes_for(bits: &Range<u32>) -> u32 {
+    (bits.end - bits.start).div_ceil(8)
+}
+
+/// Look-back polls before the fallback: CPU devices run one workgroup per thread, so a
+/// short spin costs little and the fallback is cheap; GPUs publish within microseconds.
+pub(crate) fn spin_limit(ctx: &Context) -> u32 {
+    if ctx.info().is_cpu {
+        256
+    } else {
+        4096
+    }
+}
+
+/// The per-run state shared by sort and scan: a state buffer (counts, dispatch
+/// arguments, histograms, errors) and the look-back status words.
+pub(crate) struct RunState {
+    pub state: Buffer,
+    pub status: Buffer,
+    pub setup: Kernel,
+    pub capacity: u32,
+}
+
+impl RunState {
+    pub fn new(ctx: &Context, name: &str, capacity: u32, status_words: u64) -> Result<Self> {
+        let state = ctx.buffer(
+            &format!("{name}.state"),
+            (STATE_WORDS * 4) as u64,
+            Memory::Device,
+        )?;
+        let status = ctx.buffer(
+            &format!("{name}.status"),
+            status_words.max(1) * 8,
+            Memory::Device,
+        )?;
+        let setup = Kernel::new(ctx, &kernels::SORT_SETUP)?;
+        // Zero once: epoch 0 never matches a run's tag, so status words need no clearing.
+        ctx.submit_and_wait(|cmd| {
+            recorder::fill(ctx, cmd, &state, 0, vk::WHOLE_SIZE, 0);
+            recorder::fill(ctx, cmd, &status, 0, vk::WHOLE_SIZE, 0);
+            Ok(())
+        })?;
+        Ok(RunState {
+            state,
+            status,
+            setup,
+            capacity,
+        })
+    }
+
+    pub fn record_setup(
+        &self,
+        ctx: &Context,
+        cmd: vk::CommandBuffer,
+        count: Count,
+        tile: u32,
+        chunk: u32,
+        hist_words: u32,
+    ) {
+        let (count_addr, n) = match count {
+            Count::Host(n) => (0, n),
+            Count::Device { buffer, offset } => (buffer.address() + offset, 0),
+        };
+        let push = SetupPush {
+            count: count_addr,
+            state: self.state.address(),
+            n,
+            capacity: self.capacity,
+            tile_size: tile,
+            chunk_size: chunk,
+            max_groups_x: ctx.info().max_compute_work_group_count[0].min(65535),
+            hist_words,
+        };
+        self.setup.dispatch(cmd, &push, [1, 1, 1]);
+        recorder::barrier(ctx, cmd);
+    }
+
+    /// Reads the state words (waits for the device).
+    pub fn read(&self, ctx: &Context) -> Result<Vec<u32>> {
+        ctx.download(&self.state, 0, 8)
+    }
+
+    /// Reads and clears the sticky error bits.
+    pub fn take_errors(&self, ctx: &Context) -> Result<u32> {
+        let e = self.read(ctx)?[ST_ERRORS];
+        if e != 0 {
+            ctx.submit_and_wait(|cmd| {
+                recorder::fill(ctx, cmd, &self.state, (ST_ERRORS * 4) as u64, 4, 0);
+                Ok(())
+            })?;
+        }
+        Ok(e)
+    }
+}
+
+/// The radix sort: kernels plus the state and look-back buffers for up to `capacity`
+/// elements. One instance serves one sort at a time on the queue (record several sorts
+/// one after another into a command buffer freely; they are ordered by barriers).
+pub struct RadixSort {
+    ctx: Context,
+    run: RunState,
+    hist: Kernel,
+    hist_scan: Kernel,
+    pass: Kernel,
+}
+
+impl RadixSort {
+    /// Largest capacity: look-back values and indices are 32-bit.
+    pub const MAX_CAPACITY: u32 = u32::MAX - SORT_TILE;
+
+    pub fn new(ctx: &Context, capacity: u32) -> Result<Self> {
+        if capacity > Self::MAX_CAPACITY {
+            return Err(Error::Capacity(format!(
+                "sort capacity {capacity} exceeds the maximum {}",
+                Self::MAX_CAPACITY
+            )));
+        }
+        let tiles = capacity.div_ceil(SORT_TILE).max(1) as u64;
+        Ok(RadixSort {
+            ctx: ctx.clone(),
+            run: RunState::new(ctx, "radix-sort", capacity, tiles * 256)?,
+            hist: Kernel::new(ctx, &kernels::SORT_HISTOGRAM)?,
+            hist_scan: Kernel::new(ctx, &kernels::SORT_HIST_SCAN)?,
+            pass: Kernel::new(ctx, &kernels::SORT_ONESWEEP)?,
+        })
+    }
+
+    pub fn capacity(&self) -> u32 {
+        self.run.capacity
+    }
+
+    /// Records a sort of the first `count` pairs of `bufs` by key bits `bits`
+    /// (`lo..hi`, 0 ≤ lo < hi ≤ 64; an empty range sorts nothing). Returns which buffer
+    /// pair holds the result: `Primary` after an even number of passes. The caller must
+    /// make earlier writes to the inputs (and the count) visible to compute shaders and
+    /// must not read the result before a compute→consumer barrier. A count above the
+    /// capacity is clamped and flagged (see [`RadixSort::take_errors`]).
+    ///
+    /// With `ts`, a timestamp is written after each stage.
+    pub fn record(
+        &self,
+        cmd: vk::CommandBuffer,
+        bufs: &SortBuffers,
+        count: Count,
+        bits: Range<u32>,
+        mut ts: Option<&mut Timestamps>,
+    ) -> Result<Sorted> {
+        if bits.start > bits.end || bits.end > 64 {
+            return Err(Error::Invalid(format!(
+                "bit range {bits:?} is not within 0..64"
+            )));
+        }
+        let need = self.run.capacity as u64;
+        for (b, w) in [
+            (bufs.keys, 8u64),
+            (bufs.keys_alt, 8),
+            (bufs.values, 4),
+            (bufs.values_alt, 4),
+        ] {
+            if b.size() < need * w {
+                return Err(Error::Invalid(format!(
+                    "buffer `{}` holds {} bytes; a sort of capacity {} needs {}",
+                    b.name(),
+                    b.size(),
+                    need,
+                    need * w
+                )));
+            }
+        }
+        let passes = passes_for(&bits);
+        if passes == 0 {
+            return Ok(Sorted::Primary);
+        }
+        let ctx = &self.ctx;
+        self.run
+            .record_setup(ctx, cmd, count, SORT_TILE, HIST_CHUNK, passes * 256);
+        if let Some(t) = ts.as_deref_mut() {
+            t.mark(cmd, "sort.setup");
+        }
+        let state = self.run.state.address();
+        self.hist.dispatch_indirect(
+            cmd,
+            &HistPush {
+                keys: bufs.keys.address(),
+                state,
+                lo: bits.start,
+                hi: bits.end,
+                passes,
+                pad: 0,
+            },
+            self.run.state.raw(),
+            ST_ARGS_CHUNKS,
+        );
+        recorder::barrier(ctx, cmd);
+        self.hist_scan.dispatch(
+            cmd,
+            &HistScanPush {
+                state,
+                passes,
+                pad: 0,
+            },
+            [1, 1, 1],
+        );
+        recorder::barrier(ctx, cmd);
+        if let Some(t) = ts.as_deref_mut() {
+            t.mark(cmd, "sort.histogram");
+        }
+        let spin = spin_limit(ctx);
+        for p in 0..passes {
+            let shift = bits.start + 8 * p;
+            let (ki, vi, ko, vo) = if p % 2 == 0 {
+                (bufs.keys, bufs.values, bufs.keys_alt, bufs.values_alt)
+            } else {
+                (bufs.keys_alt, bufs.values_alt, bufs.keys, bufs.values)
+            };
+            let push = PassPush {
+                keys_in: ki.address(),
+                vals_in: vi.address(),
+                keys_out: ko.address(),
+                vals_out: vo.address(),
+                state,
+                status: self.run.status.address(),
+                shift,
+                bits: (bits.end - shift).min(8),
+                pass_index: p,
+                spin_limit: spin,
+            };
+            self.pass
+                .dispatch_indirect(cmd, &push, self.run.state.raw(), ST_ARGS_TILES);
+            recorder::barrier(ctx, cmd);
+            if let Some(t) = ts.as_deref_mut() {
+                t.mark(cmd, &format!("sort.pass{p}"));
+            }
+        }
+        Ok(if passes % 2 == 0 {
+            Sorted::Primary
+        } else {
+            Sorted::Alternate
+        })
+    }
+
+    /// Reads and clears the sticky error bits (`ERR_OVERFLOW`, `ERR_LOOKBACK`).
+    pub fn take_errors(&self) -> Result<u32> {
+        self.run.take_errors(&self.ctx)
+    }
+
+    /// `(count used, count requested)` of the last recorded run (waits for the device).
+    pub fn last_count(&self) -> Result<(u32, u32)> {
+        let s = self.run.read(&self.ctx)?;
+        Ok((s[ST_N], s[ST_REQUESTED]))
+    }
+
+    /// Convenience: uploads, sorts by `bits`, waits and returns the sorted pairs.
+    pub fn sort(
+        &self,
+        keys: &[u64],
+        values: &[u32],
+        bits: Range<u32>,
+    ) -> Result<(Vec<u64>, Vec<u32>)> {
+        if keys.len() != values.len() {
+            return Err(Error::Invalid(format!(
+                "{} keys but {} values",
+                keys.len(),
+                values.len()
+            )));
+        }
+        let n = u32::try_from(keys.len())
+            .ok()
+            .filter(|&n| n <= self.run.capacity)
+            .ok_or_else(|| {
+                Error::Capacity(format!(
+                    "{} keys exceed the sort capacity {}",
+                    keys.len(),
+                    self.run.capacity
+                ))
+            })?;
+        let b = SortScratch::new(&self.ctx, self.run.capacity)?;
+        self.ctx.upload(&b.keys, 0, keys)?;
+        self.ctx.upload(&b.values, 0, values)?;
+        let which = self.ctx.submit_and_wait(|cmd| {
+            self.record(cmd, &b.as_buffers(), Count::Host(n), bits.clone(), None)
+        })?;
+        let errors = self.take_errors()?;
+        if errors != 0 {
+            return Err(Error::Gpu(format!(
+                "radix sort reported error bits {errors:#x}"
+            )));
+        }
+        let (k, v) = b.result(which);
+        Ok((
+            self.ctx.download(k, 0, n as usize)?,
+            self.ctx.download(v, 0, n as usize)?,
+        ))
+    }
+}
+
+/// Owned key/value buffers (primary + alternate) for a sort of `capacity` pairs.
+pub struct SortScratch {
+    pub keys: Buffer,
+    pub values: Buffer,
+    pub keys_alt: Buffer,
+    pub values_alt: Buffer,
+}
+
+impl SortScratch {
+    pub fn new(ctx: &Context, capacity: u32) -> Result<Self> {
+        let c = capacity as u64;
+        Ok(SortScratch {
+            keys: ctx.buffer("sort.keys", c * 8, Memory::Device)?,
+            values: ctx.buffer("sort.values", c * 4, Memory::Device)?,
+            keys_alt: ctx.buffer("sort.keys_alt", c * 8, Memory::Device)?,
+            values_alt: ctx.buffer("sort.values_alt", c * 4, Memory::Device)?,
+        })
+    }
+    pub fn as_buffers(&self) -> SortBuffers<'_> {
+        SortBuffers {
+            keys: &self.keys,
+            values: &self.values,
+            keys_alt: &self.keys_alt,
+            values_alt: &self.values_alt,
+        }
+    }
+    pub fn result(&self, which: Sorted) -> (&Buffer, &Buffer) {
+        match which {
+            Sorted::Primary => (&self.keys, &self.values),
+            Sorted::Alternate => (&self.keys_alt, &self.values_alt),
+        }
+    }
+}
