@@ -1,1 +1,10 @@
-fn main() {}
+//! `svraster`: the command-line front end (see `svraster --help`).
+
+mod cli;
+
+fn main() {
+    if let Err(e) = cli::run() {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
+}

@@ -1,0 +1,400 @@
+//! Radix sort and prefix scan against Rust's stable sort / a plain scan, on every size
+//! class and key distribution the issue lists, with stability checked through values.
+
+mod common;
+
+use common::Rng;
+use svraster::gpu::{recorder, Context, Memory};
+use svraster::scan::PrefixScan;
+use svraster::sort::{Count, RadixSort, SortScratch, Sorted, ERR_OVERFLOW};
+
+const SIZES: &[usize] = &[
+    0,
+    1,
+    2,
+    255,
+    256,
+    257,
+    4095,
+    4096,
+    4097,
+    65_537,
+    1_000_000,
+    1 << 22,
+];
+const RANGES: &[(u32, u32)] = &[(0, 64), (0, 16), (13, 61)];
+
+#[derive(Clone, Copy, Debug)]
+enum Dist {
+    Uniform,
+    AllEqual,
+    Sorted,
+    Reversed,
+    ThreeValues,
+    HighBitsOnly,
+    LowByteOnly,
+}
+
+fn keys_for(dist: Dist, n: usize, rng: &mut Rng) -> Vec<u64> {
+    let c = rng.next_u64();
+    let three = [rng.next_u64(), rng.next_u64(), rng.next_u64()];
+    let mut k: Vec<u64> = (0..n)
+        .map(|_| match dist {
+            Dist::AllEqual => c,
+            Dist::ThreeValues => three[rng.below(3) as usize],
+            Dist::HighBitsOnly => rng.next_u64() & 0xffff_0000_0000_0000,
+            Dist::LowByteOnly => rng.next_u64() & 0xff,
+            _ => rng.next_u64(),
+        })
+        .collect();
+    match dist {
+        Dist::Sorted => k.sort_unstable(),
+        Dist::Reversed => k.sort_unstable_by(|a, b| b.cmp(a)),
+        _ => {}
+    }
+    k
+}
+
+/// Sorts with buffers reused across cases; returns the GPU result.
+struct Harness {
+    ctx: Context,
+    sort: RadixSort,
+    buf: SortScratch,
+}
+
+impl Harness {
+    fn new(capacity: u32) -> Self {
+        let ctx = common::context();
+        let sort = RadixSort::new(&ctx, capacity).unwrap();
+        let buf = SortScratch::new(&ctx, capacity).unwrap();
+        Harness { ctx, sort, buf }
+    }
+    fn run(&self, keys: &[u64], vals: &[u32], lo: u32, hi: u32) -> (Vec<u64>, Vec<u32>) {
+        let ctx = &self.ctx;
+        let n = keys.len() as u32;
+        ctx.upload(&self.buf.keys, 0, keys).unwrap();
+        ctx.upload(&self.buf.values, 0, vals).unwrap();
+        let which = ctx
+            .submit_and_wait(|cmd| {
+                self.sort
+                    .record(cmd, &self.buf.as_buffers(), Count::Host(n), lo..hi, None)
+            })
+            .unwrap();
+        assert_eq!(self.sort.take_errors().unwrap(), 0);
+        let (k, v) = self.buf.result(which);
+        (
+            ctx.download(k, 0, keys.len()).unwrap(),
+            ctx.download(v, 0, keys.len()).unwrap(),
+        )
+    }
+}
+
+fn check_dist(dist: Dist, seed: u64) {
+    let h = Harness::new(1 << 22);
+    let mut rng = Rng(seed);
+    for &n in SIZES {
+        let keys = keys_for(dist, n, &mut rng);
+        let vals: Vec<u32> = (0..n as u32).collect();
+        for &(lo, hi) in RANGES {
+            let (gk, gv) = h.run(&keys, &vals, lo, hi);
+            let (rk, rv) = common::reference_sort(&keys, &vals, lo, hi);
+            if let Some(i) = (0..n).find(|&i| gk[i] != rk[i] || gv[i] != rv[i]) {
+                panic!(
+                    "{dist:?} n={n} bits {lo}..{hi}: first mismatch at {i}: got ({:#x}, {}), want ({:#x}, {})",
+                    gk[i], gv[i], rk[i], rv[i]
+                );
+            }
+        }
+    }
+    common::finish(&h.ctx);
+}
+
+#[test]
+fn sort_uniform() {
+    check_dist(Dist::Uniform, 1);
+}
+#[test]
+fn sort_all_equal() {
+    check_dist(Dist::AllEqual, 2);
+}
+#[test]
+fn sort_already_sorted() {
+    check_dist(Dist::Sorted, 3);
+}
+#[test]
+fn sort_reversed() {
+    check_dist(Dist::Reversed, 4);
+}
+#[test]
+fn sort_three_values() {
+    check_dist(Dist::ThreeValues, 5);
+}
+#[test]
+fn sort_high_bits_only() {
+    check_dist(Dist::HighBitsOnly, 6);
+}
+#[test]
+fn sort_low_byte_only() {
+    check_dist(Dist::LowByteOnly, 7);
+}
+
+/// Odd bit ranges: one-bit digits, a last digit narrower than 8 bits, a single bit,
+/// the top bit alone, and an empty range (a no-op that leaves the input in place).
+#[test]
+fn sort_odd_bit_ranges() {
+    let h = Harness::new(100_000);
+    let mut rng = Rng(11);
+    let keys: Vec<u64> = (0..100_000).map(|_| rng.next_u64()).collect();
+    let vals: Vec<u32> = (0..100_000).collect();
+    for (lo, hi) in [
+        (0, 1),
+        (63, 64),
+        (5, 12),
+        (1, 63),
+        (32, 41),
+        (56, 64),
+        (60, 63),
+    ] {
+        let (gk, gv) = h.run(&keys, &vals, lo, hi);
+        let (rk, rv) = common::reference_sort(&keys, &vals, lo, hi);
+        assert!(gk == rk && gv == rv, "bits {lo}..{hi}");
+    }
+    // Empty range: nothing to do, result in the primary buffers, unchanged.
+    h.ctx.upload(&h.buf.keys, 0, &keys).unwrap();
+    let w = h
+        .ctx
+        .submit_and_wait(|cmd| {
+            h.sort
+                .record(cmd, &h.buf.as_buffers(), Count::Host(100_000), 7..7, None)
+        })
+        .unwrap();
+    assert_eq!(w, Sorted::Primary);
+    assert_eq!(
+        h.ctx.download::<u64>(&h.buf.keys, 0, 100_000).unwrap(),
+        keys
+    );
+    assert!(h
+        .sort
+        .record(vk_null(), &h.buf.as_buffers(), Count::Host(1), 9..65, None)
+        .is_err());
+    common::finish(&h.ctx);
+}
+
+fn vk_null() -> ash::vk::CommandBuffer {
+    ash::vk::CommandBuffer::null()
+}
+
+/// Past maxStorageBufferRange (128 MiB on lavapipe): 2^24 + 3 keys are 128 MiB + 24 B,
+/// reachable only through buffer device addresses.
+#[test]
+fn sort_beyond_storage_buffer_range() {
+    let n = (1usize << 24) + 3;
+    let h = Harness::new(n as u32);
+    assert!(h.buf.keys.size() > h.ctx.info().max_storage_buffer_range);
+    let mut rng = Rng(12);
+    let keys: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
+    let vals: Vec<u32> = (0..n as u32).collect();
+    let (gk, gv) = h.run(&keys, &vals, 40, 56);
+    let (rk, rv) = common::reference_sort(&keys, &vals, 40, 56);
+    assert!(gk == rk, "keys differ");
+    assert!(gv == rv, "values differ");
+    common::finish(&h.ctx);
+}
+
+/// The element count read from a GPU buffer (indirect dispatch, no host read-back);
+/// a count above capacity is clamped and flagged, never written out of bounds.
+#[test]
+fn sort_count_from_device_and_overflow() {
+    let ctx = common::context();
+    let cap = 10_000u32;
+    let sort = RadixSort::new(&ctx, cap).unwrap();
+    let buf = SortScratch::new(&ctx, cap).unwrap();
+    let count = ctx.buffer("count", 4, Memory::Device).unwrap();
+    let mut rng = Rng(13);
+    let keys: Vec<u64> = (0..cap).map(|_| rng.next_u64()).collect();
+    let vals: Vec<u32> = (0..cap).collect();
+    for n in [0u32, 1, 777, 5000, cap] {
+        ctx.upload(&buf.keys, 0, &keys).unwrap();
+        ctx.upload(&buf.values, 0, &vals).unwrap();
+        ctx.upload(&count, 0, &[n]).unwrap();
+        let w = ctx
+            .submit_and_wait(|cmd| {
+                sort.record(
+                    cmd,
+                    &buf.as_buffers(),
+                    Count::Device {
+                        buffer: &count,
+                        offset: 0,
+                    },
+                    0..64,
+                    None,
+                )
+            })
+            .unwrap();
+        assert_eq!(sort.take_errors().unwrap(), 0);
+        assert_eq!(sort.last_count().unwrap(), (n, n));
+        let (k, v) = buf.result(w);
+        let gk: Vec<u64> = ctx.download(k, 0, n as usize).unwrap();
+        let gv: Vec<u32> = ctx.download(v, 0, n as usize).unwrap();
+        let (rk, rv) = common::reference_sort(&keys[..n as usize], &vals[..n as usize], 0, 64);
+        assert!(gk == rk && gv == rv, "device count {n}");
+    }
+    // Overflow: the sort clamps to `cap`, sorts those pairs, and raises ERR_OVERFLOW.
+    ctx.upload(&buf.keys, 0, &keys).unwrap();
+    ctx.upload(&buf.values, 0, &vals).unwrap();
+    ctx.upload(&count, 0, &[cap + 12_345]).unwrap();
+    let w = ctx
+        .submit_and_wait(|cmd| {
+            sort.record(
+                cmd,
+                &buf.as_buffers(),
+                Count::Device {
+                    buffer: &count,
+                    offset: 0,
+                },
+                0..64,
+                None,
+            )
+        })
+        .unwrap();
+    assert_eq!(sort.last_count().unwrap(), (cap, cap + 12_345));
+    assert_eq!(sort.take_errors().unwrap(), ERR_OVERFLOW);
+    assert_eq!(
+        sort.take_errors().unwrap(),
+        0,
+        "errors are cleared once taken"
+    );
+    let (k, _) = buf.result(w);
+    let gk: Vec<u64> = ctx.download(k, 0, cap as usize).unwrap();
+    let (rk, _) = common::reference_sort(&keys, &vals, 0, 64);
+    assert_eq!(gk, rk);
+    common::finish(&ctx);
+}
+
+/// Two sorts recorded back to back in one command buffer (the look-back epochs of the
+/// second run must not see the first run's status words).
+#[test]
+fn sort_twice_in_one_command_buffer() {
+    let ctx = common::context();
+    let n = 300_000u32;
+    let sort = RadixSort::new(&ctx, n).unwrap();
+    let a = SortScratch::new(&ctx, n).unwrap();
+    let b = SortScratch::new(&ctx, n).unwrap();
+    let mut rng = Rng(14);
+    let ka: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
+    let kb: Vec<u64> = (0..n).map(|_| rng.next_u64() & 0xffff_ffff).collect();
+    let vals: Vec<u32> = (0..n).collect();
+    for (s, k) in [(&a, &ka), (&b, &kb)] {
+        ctx.upload(&s.keys, 0, k).unwrap();
+        ctx.upload(&s.values, 0, &vals).unwrap();
+    }
+    let (wa, wb) = ctx
+        .submit_and_wait(|cmd| {
+            let wa = sort.record(cmd, &a.as_buffers(), Count::Host(n), 0..64, None)?;
+            let wb = sort.record(cmd, &b.as_buffers(), Count::Host(n), 0..32, None)?;
+            Ok((wa, wb))
+        })
+        .unwrap();
+    for (s, w, k, bits) in [(&a, wa, &ka, 64), (&b, wb, &kb, 32)] {
+        let (rk, rv) = common::reference_sort(k, &vals, 0, bits);
+        let (gk, gv) = s.result(w);
+        assert_eq!(ctx.download::<u64>(gk, 0, n as usize).unwrap(), rk);
+        assert_eq!(ctx.download::<u32>(gv, 0, n as usize).unwrap(), rv);
+    }
+    common::finish(&ctx);
+}
+
+#[test]
+fn scan_matches_reference() {
+    let ctx = common::context();
+    let scan = PrefixScan::new(&ctx, 1 << 22).unwrap();
+    let mut rng = Rng(21);
+    for &n in SIZES {
+        for kind in 0..4 {
+            let data: Vec<u32> = (0..n)
+                .map(|_| match kind {
+                    0 => rng.below(1000) as u32,
+                    1 => 0,
+                    2 => 1,
+                    _ => rng.next_u64() as u32, // wraps many times
+                })
+                .collect();
+            let (out, total) = scan.scan(&data).unwrap();
+            let (ro, rt) = common::reference_scan(&data);
+            assert!(out == ro, "scan n={n} kind={kind}");
+            assert_eq!(total, rt, "total n={n} kind={kind}");
+        }
+    }
+    common::finish(&ctx);
+}
+
+/// Scan with the count from a GPU buffer, the total written to a caller's buffer, and
+/// overflow clamping.
+#[test]
+fn scan_count_from_device_total_and_overflow() {
+    let ctx = common::context();
+    let cap = 50_000u32;
+    let scan = PrefixScan::new(&ctx, cap).unwrap();
+    let input = ctx.buffer("in", cap as u64 * 4, Memory::Device).unwrap();
+    let output = ctx.buffer("out", cap as u64 * 4, Memory::Device).unwrap();
+    let misc = ctx.buffer("count+total", 16, Memory::Device).unwrap();
+    let mut rng = Rng(22);
+    let data: Vec<u32> = (0..cap).map(|_| rng.below(50) as u32).collect();
+    ctx.upload(&input, 0, &data).unwrap();
+    for n in [0u32, 3, 2048, 2049, 33_333, cap, cap + 1] {
+        ctx.upload(&misc, 0, &[n, 0xdead_beef, 0, 0]).unwrap();
+        ctx.submit_and_wait(|cmd| {
+            scan.record(
+                cmd,
+                &input,
+                &output,
+                Count::Device {
+                    buffer: &misc,
+                    offset: 0,
+                },
+                Some((&misc, 4)),
+            )
+        })
+        .unwrap();
+        let used = n.min(cap) as usize;
+        let (ro, rt) = common::reference_scan(&data[..used]);
+        assert_eq!(ctx.download::<u32>(&output, 0, used).unwrap(), ro, "n={n}");
+        let total = ctx.download::<u32>(&misc, 4, 1).unwrap()[0];
+        // With n = 0 no tile runs: the caller's total is left untouched.
+        assert_eq!(
+            total,
+            if used == 0 { 0xdead_beef } else { rt },
+            "total n={n}"
+        );
+        assert_eq!(scan.last_total().unwrap(), rt);
+        assert_eq!(
+            scan.take_errors().unwrap(),
+            if n > cap { ERR_OVERFLOW } else { 0 }
+        );
+    }
+    assert!(
+        scan.record(vk_null(), &input, &input, Count::Host(1), None)
+            .is_err(),
+        "aliasing is refused"
+    );
+    common::finish(&ctx);
+}
+
+/// The validation harness itself: a deliberate misuse must be reported (so a clean
+/// run means something).
+#[test]
+fn validation_layer_reports_misuse() {
+    let ctx = common::context();
+    assert!(ctx.validation_enabled());
+    let b = ctx.buffer("misuse", 64, Memory::Device).unwrap();
+    ctx.submit_and_wait(|cmd| {
+        // size must be a multiple of 4 (VUID-vkCmdFillBuffer-size-00028)
+        recorder::fill(&ctx, cmd, &b, 0, 6, 0);
+        Ok(())
+    })
+    .unwrap();
+    assert!(
+        ctx.validation_messages() > 0,
+        "the validation layer did not report an invalid fill"
+    );
+}
