@@ -82,17 +82,32 @@ void main() {
         uint64_t key = valid ? pc.keys_in.v[idx] : 0ul;
         uint val = valid ? pc.vals_in.v[idx] : 0u;
         uint d = uint(key >> pc.shift) & digit_mask;
-        uvec4 match = subgroupBallot(valid);
-        for (uint b = 0u; b < 8u; b++) {
-            bool set = ((d >> b) & 1u) != 0u;
-            uvec4 bal = subgroupBallot(set);
-            match &= set ? bal : ~bal;
+        // Lanes with the same digit: AND of one ballot per digit bit. Subgroups of up to
+        // 32 lanes (lavapipe, NVIDIA, Intel) need only the first mask word.
+        uint below, cnt;
+        if (sgsize <= 32u) {
+            uint match = subgroupBallot(valid).x;
+            for (uint b = 0u; b < pc.bits; b++) {
+                bool set = ((d >> b) & 1u) != 0u;
+                uint bal = subgroupBallot(set).x;
+                match &= set ? bal : ~bal;
+            }
+            below = bitCount(match & lt.x);
+            cnt = bitCount(match);
+        } else {
+            uvec4 match = subgroupBallot(valid);
+            for (uint b = 0u; b < pc.bits; b++) {
+                bool set = ((d >> b) & 1u) != 0u;
+                uvec4 bal = subgroupBallot(set);
+                match &= set ? bal : ~bal;
+            }
+            below = popcount4(match & lt);
+            cnt = popcount4(match);
         }
-        uint below = popcount4(match & lt);
         uint prev = valid ? s_rows[sg * RADIX + d] : 0u;
         subgroupMemoryBarrierShared();
         subgroupBarrier();
-        if (valid && below == 0u) s_rows[sg * RADIX + d] = prev + popcount4(match);
+        if (valid && below == 0u) s_rows[sg * RADIX + d] = prev + cnt;
         subgroupMemoryBarrierShared();
         subgroupBarrier();
         k[r] = key;
