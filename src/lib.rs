@@ -2,10 +2,15 @@
 //!
 //! - [`gpu`]: the Vulkan layer (owned or borrowed device, buffers, kernels, timestamps).
 //! - [`sort`]: onesweep radix sort of u64 keys with u32 values, and the u32 prefix scan.
+//! - [`scene`]: the sparse-voxel model and its checkpoint format.
+//! - [`data`]: cameras and datasets.
 
+pub mod data;
 pub mod error;
 pub mod gpu;
+pub mod raster;
 pub mod scan;
+pub mod scene;
 pub mod sort;
 
 pub use error::{Error, Result};

@@ -66,3 +66,131 @@ pub fn reference_scan(data: &[u32]) -> (Vec<u32>, u32) {
         .collect();
     (out, run)
 }
+
+pub mod reference;
+
+use svraster::data::Camera;
+use svraster::scene::{octpath_from_ijk, Scene, MAX_LEVEL};
+
+impl Rng {
+    /// Uniform in [0, 1).
+    pub fn unit(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.unit()
+    }
+    /// A random unit vector.
+    pub fn dir(&mut self) -> [f64; 3] {
+        loop {
+            let v = [
+                self.range(-1.0, 1.0),
+                self.range(-1.0, 1.0),
+                self.range(-1.0, 1.0),
+            ];
+            let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if n > 0.1 && n <= 1.0 {
+                return [v[0] / n, v[1] / n, v[2] / n];
+            }
+        }
+    }
+}
+
+/// A random non-overlapping multi-level voxel set: random subdivision from the root
+/// (more likely near the top), some leaves dropped, and one chain of subdivisions
+/// down to `max_level` so every level is present.
+pub fn random_voxels(rng: &mut Rng, max_level: u32) -> (Vec<u64>, Vec<u8>) {
+    let mut paths = Vec::new();
+    let mut levels = Vec::new();
+    let mut stack: Vec<([u32; 3], u32, bool)> = vec![([0, 0, 0], 0, true)];
+    while let Some((ijk, level, chain)) = stack.pop() {
+        let chain_child = rng.below(8) as u32;
+        for c in 0..8u32 {
+            let child = [
+                ijk[0] * 2 + (c >> 2 & 1),
+                ijk[1] * 2 + (c >> 1 & 1),
+                ijk[2] * 2 + (c & 1),
+            ];
+            let l = level + 1;
+            let on_chain = chain && c == chain_child && l < max_level;
+            let p_split = if l <= 2 { 0.3 } else { 0.04 };
+            if on_chain || (l < max_level && rng.unit() < p_split) {
+                stack.push((child, l, on_chain));
+            } else if rng.unit() < 0.8 {
+                paths.push(octpath_from_ijk(child, l));
+                levels.push(l as u8);
+            }
+        }
+    }
+    (paths, levels)
+}
+
+/// Random raw densities: mostly moderate, some very small, some large and huge.
+pub fn random_density(rng: &mut Rng) -> f32 {
+    let u = rng.unit();
+    (if u < 0.55 {
+        rng.range(-4.0, 3.0)
+    } else if u < 0.75 {
+        rng.range(-60.0, -8.0)
+    } else if u < 0.95 {
+        rng.range(3.0, 60.0)
+    } else {
+        rng.range(1e3, 1e5)
+    }) as f32
+}
+
+/// A random scene of `random_voxels` with random densities and SH of `degree`.
+pub fn random_scene(rng: &mut Rng, max_level: u32, degree: u32) -> Scene {
+    let (paths, levels) = random_voxels(rng, max_level.min(MAX_LEVEL));
+    let center = [
+        rng.range(-1.0, 1.0) as f32,
+        rng.range(-1.0, 1.0) as f32,
+        rng.range(-1.0, 1.0) as f32,
+    ];
+    let extent = rng.range(2.0, 4.0) as f32;
+    let mut s = Scene::from_voxels(center, extent, degree, paths, levels, 0.0)
+        .expect("random voxels are valid");
+    for g in s.geo.iter_mut() {
+        *g = random_density(rng);
+    }
+    for c in s.sh0.iter_mut() {
+        *c = [
+            rng.range(-1.5, 1.5) as f32,
+            rng.range(-1.5, 1.5) as f32,
+            rng.range(-1.5, 1.5) as f32,
+        ];
+    }
+    for v in s.shs.iter_mut() {
+        *v = rng.range(-0.6, 0.6) as f32;
+    }
+    s.background = [rng.unit() as f32, rng.unit() as f32, rng.unit() as f32];
+    s
+}
+
+/// A camera outside the scene cube looking at its centre.
+pub fn camera_outside(rng: &mut Rng, scene: &Scene, w: u32, h: u32) -> Camera {
+    let c = scene.center.map(|v| v as f64);
+    let d = rng.dir();
+    let r = scene.extent as f64 * rng.range(1.2, 2.0);
+    let eye = [c[0] + r * d[0], c[1] + r * d[1], c[2] + r * d[2]];
+    let target = [
+        c[0] + rng.range(-0.2, 0.2),
+        c[1] + rng.range(-0.2, 0.2),
+        c[2] + rng.range(-0.2, 0.2),
+    ];
+    Camera::look_at(eye, target, rng.dir(), rng.range(0.6, 1.2), w, h)
+}
+
+/// A camera inside the scene cube looking in a random direction.
+pub fn camera_inside(rng: &mut Rng, scene: &Scene, w: u32, h: u32) -> Camera {
+    let c = scene.center.map(|v| v as f64);
+    let e = scene.extent as f64;
+    let eye = [
+        c[0] + rng.range(-0.4, 0.4) * e,
+        c[1] + rng.range(-0.4, 0.4) * e,
+        c[2] + rng.range(-0.4, 0.4) * e,
+    ];
+    let d = rng.dir();
+    let target = [eye[0] + d[0], eye[1] + d[1], eye[2] + d[2]];
+    Camera::look_at(eye, target, rng.dir(), rng.range(0.8, 1.6), w, h)
+}

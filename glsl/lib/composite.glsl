@@ -1,0 +1,163 @@
+// Forward compositing of one 16x16 tile per workgroup (paper Eq. 1, supp. A.2-A.4),
+// shared by composite_k{1,2,3}.comp, which define N_SAMP (samples per voxel segment).
+//
+// Each dispatch handles one chunk of at most CHUNK entries of every tile's sorted list
+// and carries the per-pixel state (C, T, D, N, median) in the image buffers, so no
+// invocation's loops exceed llvmpipe's 65 535-iteration limit however long a tile's
+// list is; the host records enough chunks (stats report the longest list and flag a
+// shortfall). Entries are staged through shared memory 256 at a time; a pixel skips
+// entries of another ray-sign octant or whose pixel rectangle excludes it, and a
+// subgroup vote skips the intersection work when no lane needs it.
+#include "raster_params.glsl"
+#include "explin.glsl"
+#include "morton.glsl"
+#include "ray_aabb.glsl"
+#include "trilinear.glsl"
+layout(local_size_x = 256) in;
+
+layout(push_constant) uniform Push {
+    FrameParams P;
+    uint chunk;
+    uint pad;
+} pc;
+
+shared uint s_val[256];
+shared uvec2 s_box[256];
+shared vec4 s_cs[256];
+shared float s_geo[256 * 8];
+shared float s_rgb[256 * 3];
+shared float s_nrm[256 * 3];
+shared uint s_alive;
+
+void main() {
+    FrameParams P = pc.P;
+    uint l = gl_LocalInvocationID.x;
+    uint tiles_x = P.dims.z;
+    uint tile = gl_WorkGroupID.y * tiles_x + gl_WorkGroupID.x;
+    uvec2 pix = gl_WorkGroupID.xy * 16u + tile_pixel(l);
+    uint W = P.dims.x, H = P.dims.y;
+    bool inside = pix.x < W && pix.y < H;
+    uint npix = W * H;
+    uint p = pix.y * W + pix.x;
+
+    vec3 rd;
+    float rd_norm;
+    pixel_ray(P, pix, rd, rd_norm);
+    vec3 inv_rd = 1.0 / rd;
+    uint sign = ray_sign_bits(rd);
+    float t_near = P.bg.w * rd_norm;
+
+    vec3 C = vec3(0.0), N = vec3(0.0);
+    float T = 1.0, D = 0.0, med_t = 0.0;
+    uint med_id = 0xffffffffu;
+    if (pc.chunk > 0u && inside) {
+        C = vec3(P.img.v[CH_R * npix + p], P.img.v[CH_G * npix + p], P.img.v[CH_B * npix + p]);
+        T = P.img.v[CH_T * npix + p];
+        D = P.img.v[CH_DEPTH * npix + p];
+        N = vec3(P.img.v[CH_NX * npix + p], P.img.v[CH_NY * npix + p], P.img.v[CH_NZ * npix + p]);
+        med_id = P.med_id.v[p];
+        med_t = P.med_t.v[p];
+    }
+    bool done = !inside || T < EARLY_STOP_T;
+
+    uint chunk_size = P.cfg2.y;
+    uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
+    uint start = r0 + min(r1 - r0, pc.chunk * chunk_size);
+    uint end = min(r1, start + chunk_size);
+    if (l == 0u) {
+        if (pc.chunk == 0u) atomicMax(P.stats.v[STAT_MAX_TILE], r1 - r0);
+        if (pc.chunk + 1u == P.cfg2.x && end < r1) atomicOr(P.stats.v[STAT_FLAGS], FLAG_NEED_CHUNKS);
+    }
+    uint n = end - start;
+
+    for (uint base = 0u; base < n; base += 256u) {
+        // Stop when every pixel of the tile is done (workgroup-uniform decision).
+        barrier();
+        if (l == 0u) s_alive = 0u;
+        barrier();
+        if (!done) atomicAdd(s_alive, 1u);
+        barrier();
+        if (s_alive == 0u) break;
+
+        if (base + l < n) {
+            uint val = P.svals.v[start + base + l];
+            uint v = val & 0x1fffffffu;
+            s_val[l] = val;
+            s_box[l] = uvec2(P.bbox.v[2u * v], P.bbox.v[2u * v + 1u]);
+            s_cs[l] = vec4(P.cs.v[4u * v], P.cs.v[4u * v + 1u], P.cs.v[4u * v + 2u], P.cs.v[4u * v + 3u]);
+            for (uint c = 0u; c < 8u; ++c) s_geo[8u * l + c] = P.geo8.v[8u * v + c];
+            for (uint c = 0u; c < 3u; ++c) {
+                s_rgb[3u * l + c] = P.rgb.v[3u * v + c];
+                s_nrm[3u * l + c] = P.nrm.v[3u * v + c];
+            }
+        }
+        barrier();
+
+        uint cnt = min(256u, n - base);
+        for (uint j = 0u; j < cnt; ++j) {
+            uvec2 box = s_box[j];
+            bool need = !done && (s_val[j] >> 29u) == sign && pix.x >= (box.x & 0xffffu) &&
+                        pix.x <= (box.y & 0xffffu) && pix.y >= (box.x >> 16u) && pix.y <= (box.y >> 16u);
+            if (!subgroupAny(need)) continue;
+            if (!need) continue;
+            vec4 cs = s_cs[j];
+            float h = 0.5 * cs.w;
+            vec2 ab = ray_aabb(cs.xyz - h, cs.xyz + h, rd, inv_rd);
+            float a = max(ab.x, t_near), b = ab.y;
+            if (a > b) continue;
+
+            float g[8];
+            for (uint c = 0u; c < 8u; ++c) g[c] = s_geo[8u * j + c];
+            float step_sz = (b - a) * (1.0 / float(N_SAMP));
+            vec3 vmin = cs.xyz - h;
+            float inv_size = 1.0 / cs.w;
+            float vol = 0.0;
+            float la[N_SAMP];
+            for (int k = 0; k < N_SAMP; ++k) {
+                float t = a + (float(k) + 0.5) * step_sz;
+                vec3 q = (t * rd - vmin) * inv_size;
+                float local_vol = STEP_SZ_SCALE * step_sz * explin(trilinear(g, q));
+                vol += local_vol;
+                la[k] = min(MAX_ALPHA, 1.0 - exp(-local_vol));
+            }
+            float alpha = min(MAX_ALPHA, 1.0 - exp(-vol));
+            if (alpha < MIN_ALPHA) continue;
+
+            float w = T * alpha;
+            C += w * vec3(s_rgb[3u * j], s_rgb[3u * j + 1u], s_rgb[3u * j + 2u]);
+            N += w * vec3(s_nrm[3u * j], s_nrm[3u * j + 1u], s_nrm[3u * j + 2u]);
+            // Voxel depth (supp. A.4, Eqs. 19-21); K = 1 uses the segment midpoint.
+            float dval;
+#if N_SAMP == 1
+            dval = alpha * 0.5 * (a + b);
+#else
+            dval = 0.0;
+            float tr = 1.0;
+            for (int k = 0; k < N_SAMP; ++k) {
+                dval += tr * la[k] * (a + (float(k) + 0.5) * step_sz);
+                tr *= 1.0 - la[k];
+            }
+#endif
+            D += T * dval;
+            if (T > 0.5) {
+                med_id = s_val[j] & 0x1fffffffu;
+                med_t = T;
+            }
+            T *= 1.0 - alpha;
+            done = T < EARLY_STOP_T;
+        }
+    }
+
+    if (inside) {
+        P.img.v[CH_R * npix + p] = C.x;
+        P.img.v[CH_G * npix + p] = C.y;
+        P.img.v[CH_B * npix + p] = C.z;
+        P.img.v[CH_T * npix + p] = T;
+        P.img.v[CH_DEPTH * npix + p] = D;
+        P.img.v[CH_NX * npix + p] = N.x;
+        P.img.v[CH_NY * npix + p] = N.y;
+        P.img.v[CH_NZ * npix + p] = N.z;
+        P.med_id.v[p] = med_id;
+        P.med_t.v[p] = med_t;
+    }
+}

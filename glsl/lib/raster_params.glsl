@@ -1,0 +1,76 @@
+// Per-frame parameters of the rasterizer, written into the command buffer with
+// vkCmdUpdateBuffer (so a recorded frame is self-contained) and read through a device
+// address. Mirrored by `raster::FrameParams` in Rust: keep the two in sync.
+// All geometry is camera-relative: the camera sits at the origin of world axes.
+// Voxel corners relative to the camera are computed from integer grid coordinates
+// minus the camera's integer grid position (exact), minus its fractional part, times the
+// grid unit: level-16 voxels keep full f32 precision relative to the camera however far
+// the scene is from the world origin.
+#ifndef RASTER_PARAMS_GLSL
+#define RASTER_PARAMS_GLSL
+#include "common.glsl"
+
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer FrameParams {
+    vec4 w2c[3];      // rows of the world-to-camera rotation (xyz)
+    vec4 c2w[3];      // rows of the camera-to-world rotation (xyz)
+    vec4 intr;        // fx, fy, cx, cy (render resolution)
+    vec4 cam_frac;    // camera position in finest-grid units: fractional part (xyz); unit length (w)
+    vec4 bg;          // background rgb, near plane
+    uvec4 dims;       // width, height, tiles_x, tiles_y (render resolution)
+    uvec4 cfg;        // voxels, sh_degree, max_level, entry capacity
+    uvec4 cfg2;       // chunks recorded, chunk size, key shift (3 * max_level), out width
+    uvec4 cfg3;       // out height, supersampled (0/1), pad, pad
+    vec4 ss;          // render/out scale x, y, filter radius x, y (downsample)
+    ivec4 cam_int;    // camera position in finest-grid units: integer part (xyz)
+    // scene
+    U64s octpath; U32s level; U32s corners; F32s geo; F32s sh0; F32s shs;
+    // per voxel (frame)
+    U32s bbox; U32s signs; U32s counts; U32s offsets; F32s geo8; F32s rgb; F32s nrm; F32s cs;
+    // entries: emitted, and sorted
+    U64s keys; U32s vals; U64s skeys; U32s svals;
+    // per tile / pixel
+    U32s ranges; F32s img; U32s med_id; F32s med_t; F32s out_img;
+    U32s stats;
+};
+
+// Words of the stats buffer.
+const uint STAT_TOTAL = 0u;      // u64: entries requested by preprocess
+const uint STAT_USED = 2u;       // entries emitted and sorted (clamped to capacity)
+const uint STAT_FLAGS = 3u;      // FLAG_* bits
+const uint STAT_MAX_TILE = 4u;   // longest tile list
+const uint STAT_VISIBLE = 5u;    // voxels with at least one entry
+const uint STAT_ARGS = 8u;       // dispatch args of the entry-parallel kernels
+const uint STATS_WORDS = 16u;
+
+const uint FLAG_ENTRY_OVERFLOW = 1u;  // more entries than the key buffers hold
+const uint FLAG_NEED_CHUNKS = 2u;     // a tile list is longer than the chunks recorded
+
+// Channels of the planar image buffers.
+const uint CH_R = 0u, CH_G = 1u, CH_B = 2u, CH_T = 3u, CH_DEPTH = 4u, CH_DMED = 5u,
+           CH_NX = 6u, CH_NY = 7u, CH_NZ = 8u, IMG_CHANNELS = 9u;
+
+// Direction of pixel (px, py) (pixel centres at +0.5): unit world direction with
+// near-zero components flushed to exactly zero, and |camera-space direction| (whose
+// z is 1), which converts ray distance to camera depth.
+void pixel_ray(FrameParams P, uvec2 pix, out vec3 rd, out float rd_norm) {
+    vec3 cam = vec3((float(pix.x) + 0.5 - P.intr.z) / P.intr.x,
+                    (float(pix.y) + 0.5 - P.intr.w) / P.intr.y, 1.0);
+    rd_norm = length(cam);
+    vec3 w = vec3(dot(P.c2w[0].xyz, cam), dot(P.c2w[1].xyz, cam), dot(P.c2w[2].xyz, cam));
+    rd = w / rd_norm;
+    rd = mix(rd, vec3(0.0), lessThan(abs(rd), vec3(1e-20)));
+}
+
+// Pixel of local invocation `l` in a 16x16 tile: Morton order, so a subgroup of 8
+// covers a 4x2 block, 32 lanes an 8x4 block (coherent rays, fewer idle lanes).
+uvec2 tile_pixel(uint l) {
+    uint x = (l & 1u) | ((l >> 1u) & 2u) | ((l >> 2u) & 4u) | ((l >> 3u) & 8u);
+    uint y = ((l >> 1u) & 1u) | ((l >> 2u) & 2u) | ((l >> 3u) & 4u) | ((l >> 4u) & 8u);
+    return uvec2(x, y);
+}
+
+// Camera-relative world position of integer finest-grid coordinates.
+vec3 grid_to_camera(FrameParams P, uvec3 fine) {
+    return (vec3(ivec3(fine) - P.cam_int.xyz) - P.cam_frac.xyz) * P.cam_frac.w;
+}
+#endif

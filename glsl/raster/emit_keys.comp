@@ -1,0 +1,47 @@
+#version 460
+// Emits one (key, value) pair per entry, one invocation per entry (so a voxel covering
+// the whole screen costs no long loop): the owning voxel is found by binary search in
+// the exclusive scan of the per-voxel counts.
+//   key   = tile_id << (3 * max_level) | direction-dependent Morton order (top 3*max_level
+//           bits of the 48-bit path; lower levels are unused by every voxel)
+//   value = sign << 29 | voxel id
+#include "raster_params.glsl"
+#include "morton.glsl"
+layout(local_size_x = 256) in;
+
+layout(push_constant) uniform Push {
+    FrameParams P;
+} pc;
+
+void main() {
+    FrameParams P = pc.P;
+    uint i = linear_group_id() * 256u + gl_LocalInvocationID.x;
+    if (i >= P.stats.v[STAT_USED]) return;
+
+    // Last voxel whose offset is <= i (it has a non-zero count).
+    uint lo = 0u, hi = P.cfg.x;  // invariant: offsets[lo] <= i < offsets[hi] (hi = n: inf)
+    while (hi - lo > 1u) {
+        uint mid = (lo + hi) >> 1u;
+        if (P.offsets.v[mid] <= i) lo = mid; else hi = mid;
+    }
+    uint v = lo;
+    uint r = i - P.offsets.v[v];
+
+    uvec2 box = uvec2(P.bbox.v[2u * v], P.bbox.v[2u * v + 1u]);
+    uvec2 tlo = uvec2(box.x & 0xffffu, box.x >> 16u) / 16u;
+    uvec2 thi = uvec2(box.y & 0xffffu, box.y >> 16u) / 16u;
+    uint tw = thi.x - tlo.x + 1u;
+    uint ntiles = tw * (thi.y - tlo.y + 1u);
+    uint si = r / ntiles, tr = r % ntiles;
+
+    // si-th set bit of the sign octants.
+    uint signs = P.signs.v[v];
+    for (uint k = 0u; k < si; ++k) signs &= signs - 1u;
+    uint sign = uint(findLSB(signs));
+
+    uint tile = (tlo.y + tr / tw) * P.dims.z + tlo.x + tr % tw;
+    uint shift = P.cfg2.z;
+    uint64_t order = dir_morton_order(P.octpath.v[v], sign) >> (48u - shift);
+    P.keys.v[i] = (uint64_t(tile) << shift) | order;
+    P.vals.v[i] = (sign << 29u) | v;
+}

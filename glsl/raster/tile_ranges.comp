@@ -1,0 +1,20 @@
+#version 460
+// Start/end of every tile's run in the sorted keys, one invocation per entry. Ranges
+// are zeroed before, so tiles without entries read as empty.
+#include "raster_params.glsl"
+layout(local_size_x = 256) in;
+
+layout(push_constant) uniform Push {
+    FrameParams P;
+} pc;
+
+void main() {
+    FrameParams P = pc.P;
+    uint i = linear_group_id() * 256u + gl_LocalInvocationID.x;
+    uint n = P.stats.v[STAT_USED];
+    if (i >= n) return;
+    uint shift = P.cfg2.z;
+    uint tile = uint(P.skeys.v[i] >> shift);
+    if (i == 0u || uint(P.skeys.v[i - 1u] >> shift) != tile) P.ranges.v[2u * tile] = i;
+    if (i + 1u == n || uint(P.skeys.v[i + 1u] >> shift) != tile) P.ranges.v[2u * tile + 1u] = i + 1u;
+}

@@ -1,0 +1,175 @@
+//! Pinhole cameras.
+//!
+//! Convention (as the paper's reference implementation): camera-to-world `c2w` maps
+//! camera coordinates with x right, y down, z forward (OpenCV) to world. Pixel `(u, v)`
+//! (column, row; centres at `+0.5`) looks along `((u+0.5−cx)/fx, (v+0.5−cy)/fy, 1)`.
+//! Blender/NeRF-synthetic files store OpenGL cameras (y up, looking down −z); the loader
+//! converts them with [`Camera::from_opengl`].
+
+/// A pinhole camera with its image size.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Camera {
+    pub width: u32,
+    pub height: u32,
+    pub fx: f64,
+    pub fy: f64,
+    pub cx: f64,
+    pub cy: f64,
+    /// Camera-to-world rotation (columns = camera axes in world) and translation
+    /// (column 3 = camera centre), OpenCV axes.
+    pub c2w: [[f64; 4]; 3],
+    /// Near plane: geometry closer than this (camera z) is not drawn.
+    pub near: f64,
+}
+
+/// Default near plane, as the reference implementation.
+pub const DEFAULT_NEAR: f64 = 0.02;
+
+impl Camera {
+    /// From an OpenGL camera-to-world matrix (Blender `transform_matrix`) and the
+    /// horizontal field of view; square pixels, principal point at the image centre.
+    pub fn from_opengl(
+        c2w_gl: [[f64; 4]; 4],
+        camera_angle_x: f64,
+        width: u32,
+        height: u32,
+    ) -> Camera {
+        let fx = 0.5 * width as f64 / (0.5 * camera_angle_x).tan();
+        let mut c2w = [[0.0; 4]; 3];
+        for (r, row) in c2w.iter_mut().enumerate() {
+            row[0] = c2w_gl[r][0];
+            row[1] = -c2w_gl[r][1];
+            row[2] = -c2w_gl[r][2];
+            row[3] = c2w_gl[r][3];
+        }
+        Camera {
+            width,
+            height,
+            fx,
+            fy: fx,
+            cx: 0.5 * width as f64,
+            cy: 0.5 * height as f64,
+            c2w,
+            near: DEFAULT_NEAR,
+        }
+    }
+
+    /// A camera at `eye` looking at `target` with `up` roughly up on screen.
+    pub fn look_at(
+        eye: [f64; 3],
+        target: [f64; 3],
+        up: [f64; 3],
+        fov_x: f64,
+        width: u32,
+        height: u32,
+    ) -> Camera {
+        let z = normalize(sub(target, eye));
+        let x = normalize(cross(z, up));
+        let y = cross(z, x);
+        let fx = 0.5 * width as f64 / (0.5 * fov_x).tan();
+        let mut c2w = [[0.0; 4]; 3];
+        for r in 0..3 {
+            c2w[r] = [x[r], y[r], z[r], eye[r]];
+        }
+        Camera {
+            width,
+            height,
+            fx,
+            fy: fx,
+            cx: 0.5 * width as f64,
+            cy: 0.5 * height as f64,
+            c2w,
+            near: DEFAULT_NEAR,
+        }
+    }
+
+    /// The same view at another image size (intrinsics scaled per axis).
+    pub fn resized(&self, width: u32, height: u32) -> Camera {
+        let sx = width as f64 / self.width as f64;
+        let sy = height as f64 / self.height as f64;
+        Camera {
+            width,
+            height,
+            fx: self.fx * sx,
+            fy: self.fy * sy,
+            cx: self.cx * sx,
+            cy: self.cy * sy,
+            ..self.clone()
+        }
+    }
+
+    /// Camera centre in world space.
+    pub fn origin(&self) -> [f64; 3] {
+        [self.c2w[0][3], self.c2w[1][3], self.c2w[2][3]]
+    }
+
+    /// Unnormalised camera-space direction of pixel position `(u, v)` (pixel centres
+    /// at `i + 0.5`); its z component is 1.
+    pub fn camera_dir(&self, u: f64, v: f64) -> [f64; 3] {
+        [(u - self.cx) / self.fx, (v - self.cy) / self.fy, 1.0]
+    }
+
+    /// World-space ray of pixel `(px, py)` through its centre: origin and unit direction.
+    pub fn pixel_ray(&self, px: u32, py: u32) -> ([f64; 3], [f64; 3]) {
+        let d = self.camera_dir(px as f64 + 0.5, py as f64 + 0.5);
+        (self.origin(), normalize(self.rotate(d)))
+    }
+
+    /// Camera-to-world rotation of a vector.
+    pub fn rotate(&self, d: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|r| {
+            self.c2w[r][0] * d[0] + self.c2w[r][1] * d[1] + self.c2w[r][2] * d[2]
+        })
+    }
+
+    /// World-to-camera transform of a point.
+    pub fn world_to_camera(&self, p: [f64; 3]) -> [f64; 3] {
+        let q = sub(p, self.origin());
+        std::array::from_fn(|c| {
+            self.c2w[0][c] * q[0] + self.c2w[1][c] * q[1] + self.c2w[2][c] * q[2]
+        })
+    }
+
+    /// Checks the camera is usable; the message names the problem.
+    pub fn validate(&self) -> crate::Result<()> {
+        let finite = [self.fx, self.fy, self.cx, self.cy, self.near]
+            .iter()
+            .chain(self.c2w.iter().flatten())
+            .all(|v| v.is_finite());
+        if !finite {
+            return Err(crate::Error::Invalid(
+                "camera has a non-finite parameter".into(),
+            ));
+        }
+        if self.width == 0 || self.height == 0 {
+            return Err(crate::Error::Invalid(format!(
+                "camera image size {}×{} is empty",
+                self.width, self.height
+            )));
+        }
+        if self.fx <= 0.0 || self.fy <= 0.0 || self.near <= 0.0 {
+            return Err(crate::Error::Invalid(format!(
+                "camera focal lengths and near plane must be > 0 (fx {}, fy {}, near {})",
+                self.fx, self.fy, self.near
+            )));
+        }
+        Ok(())
+    }
+}
+
+pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+pub(crate) fn normalize(a: [f64; 3]) -> [f64; 3] {
+    let n = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
+    [a[0] / n, a[1] / n, a[2] / n]
+}

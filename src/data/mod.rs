@@ -1,0 +1,5 @@
+//! Datasets and cameras.
+
+pub mod camera;
+
+pub use camera::Camera;

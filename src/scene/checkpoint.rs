@@ -1,0 +1,657 @@
+//! Checkpoint I/O: a [`Scene`] as one [safetensors](https://github.com/huggingface/safetensors)
+//! file, readable by any safetensors library or by hand.
+//!
+//! # Layout
+//!
+//! ```text
+//! [8 bytes]  N: length of the JSON header, unsigned 64-bit little-endian
+//! [N bytes]  JSON header (UTF-8), padded with spaces so that the data starts at a
+//!            multiple of 8 bytes from the start of the file
+//! [rest]     data buffer: the tensors' raw little-endian bytes, back to back, no gaps
+//! ```
+//!
+//! The header is one JSON object. `"__metadata__"` maps strings to strings; every other
+//! key is a tensor: `{"dtype": "U64"|"U8"|"F32", "shape": [..], "data_offsets": [begin,
+//! end]}`, offsets in bytes relative to the start of the data buffer (`end` exclusive).
+//! Tensors are row-major (C order). With `V` voxels, `G` grid points and SH degree `D`:
+//!
+//! | tensor         | dtype | shape                | content                                    |
+//! |----------------|-------|----------------------|--------------------------------------------|
+//! | `octpath`      | U64   | `[V]`                | Morton code per voxel (see [`crate::scene`]) |
+//! | `octlevel`     | U8    | `[V]`                | octree level per voxel, 1..=16             |
+//! | `geo_grid_pts` | F32   | `[G]`                | raw density per grid point                 |
+//! | `sh0`          | F32   | `[V, 3]`             | degree-0 SH per voxel, RGB                 |
+//! | `shs`          | F32   | `[V, (D+1)²−1, 3]`   | higher-degree SH (`[V, 0, 3]`, empty, for D = 0) |
+//!
+//! `octpath` holds 3 bits per level (`x<<2 | y<<1 | z`), level 1 in bits 45..48, all bits
+//! below the voxel's own level zero. A voxel at level `l` with index `(i, j, k)` covers
+//! `[i, i+1] × [j, j+1] × [k, k+1] · 2^(16−l)` in integer coordinates of the finest grid
+//! (0..=65536 per axis). The grid points are the *unique* corners of all voxels, and
+//! `geo_grid_pts` lists their densities ordered by ascending key `x<<34 | y<<17 | z`
+//! (integer finest-grid coordinates); a voxel's 8 corner densities are found by
+//! computing its corner keys and binary-searching them (e.g. `np.searchsorted`).
+//!
+//! Metadata (all values are strings, as safetensors requires):
+//!
+//! | key            | value                                                       |
+//! |----------------|-------------------------------------------------------------|
+//! | `format`       | `svraster-vk/1`                                             |
+//! | `scene_center` | JSON array `[x,y,z]`: world centre of the root cube         |
+//! | `scene_extent` | number: full edge length of the root cube in world units   |
+//! | `sh_degree`    | `0`, `1`, `2` or `3`                                        |
+//! | `background`   | JSON array `[r,g,b]`: background colour                     |
+//!
+//! Numbers are written in the shortest form that reads back as the identical `f32`.
+//! Other metadata keys are ignored on load. Loading is strict: unknown tensors, gaps or
+//! overlaps in the data buffer, non-finite values, out-of-range levels, stray path bits,
+//! overlapping voxels or a grid-point count that does not match the voxels are errors.
+//!
+//! # Reading it from Python with only `json` and `numpy`
+//!
+//! ```python
+//! import json, numpy as np
+//! def load_svraster(path):
+//!     raw = open(path, "rb").read()
+//!     n = int.from_bytes(raw[:8], "little")
+//!     header = json.loads(raw[8:8 + n])
+//!     meta = header.pop("__metadata__")  # strings; json.loads(meta["scene_center"]) etc.
+//!     dt = {"U64": "<u8", "U8": "u1", "F32": "<f4"}
+//!     t = {k: np.frombuffer(raw[8 + n + v["data_offsets"][0]:8 + n + v["data_offsets"][1]],
+//!                           dtype=dt[v["dtype"]]).reshape(v["shape"]) for k, v in header.items()}
+//!     return meta, t  # t["octpath"], t["octlevel"], t["geo_grid_pts"], t["sh0"], t["shs"]
+//! ```
+
+use std::fs::{self, File, OpenOptions};
+use std::io::{self, BufWriter, Write};
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use serde::de::{Deserialize, Deserializer, MapAccess, Visitor};
+use serde_json::Value;
+
+use super::{sh_coeffs, Scene, MAX_LEVEL, MAX_SH_DEGREE};
+use crate::{Error, Result};
+
+/// Value of the `format` metadata key.
+pub const FORMAT: &str = "svraster-vk/1";
+
+/// Largest accepted JSON header (the same bound the safetensors library uses).
+pub const MAX_HEADER_BYTES: u64 = 100_000_000;
+
+/// Tensor names, dtypes and element sizes, in the order they are laid out in the data
+/// buffer (8-byte elements first, so every tensor starts aligned to its element size).
+const TENSORS: [(&str, &str, usize); 5] = [
+    ("octpath", "U64", 8),
+    ("geo_grid_pts", "F32", 4),
+    ("sh0", "F32", 4),
+    ("shs", "F32", 4),
+    ("octlevel", "U8", 1),
+];
+
+/// Writes `scene` to `path` atomically: the checkpoint goes to a temporary file in the
+/// same directory, is flushed to disk, then renamed over `path`. On any error the
+/// temporary file is removed and an existing file at `path` is left untouched. The scene
+/// is validated first; an invalid scene (e.g. containing NaN) is refused.
+pub fn save(scene: &Scene, path: &Path) -> Result<()> {
+    let header = encode_header(scene)?;
+    let io_err = |kind: io::ErrorKind, msg: String| Error::Io {
+        path: path.display().to_string(),
+        source: io::Error::new(kind, msg),
+    };
+    let file_name = path.file_name().ok_or_else(|| {
+        Error::Invalid(format!(
+            "cannot save a checkpoint to {}: not a file path",
+            path.display()
+        ))
+    })?;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    if !dir.is_dir() {
+        return Err(io_err(
+            io::ErrorKind::NotFound,
+            format!(
+                "cannot save the checkpoint: directory {} does not exist",
+                dir.display()
+            ),
+        ));
+    }
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let tmp = dir.join(format!(
+        ".{}.{}.{}.tmp",
+        file_name.to_string_lossy(),
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    ));
+    let file = OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&tmp)
+        .map_err(|e| {
+            io_err(
+                e.kind(),
+                format!("cannot create temporary file {}: {e}", tmp.display()),
+            )
+        })?;
+    let written = (|| -> io::Result<()> {
+        let mut w = BufWriter::with_capacity(1 << 20, file);
+        w.write_all(&header)?;
+        write_data(scene, &mut w)?;
+        let file = w.into_inner().map_err(|e| e.into_error())?;
+        file.sync_all()?;
+        drop(file);
+        fs::rename(&tmp, path)
+    })();
+    if let Err(e) = written {
+        let _ = fs::remove_file(&tmp);
+        return Err(io_err(
+            e.kind(),
+            format!("writing the checkpoint (via {}): {e}", tmp.display()),
+        ));
+    }
+    // Make the rename itself durable (best effort: not every platform can sync a directory).
+    if let Ok(d) = File::open(dir) {
+        let _ = d.sync_all();
+    }
+    Ok(())
+}
+
+/// Reads and fully validates a checkpoint written by [`save`] (or any tool following the
+/// format in the module documentation).
+pub fn load(path: &Path) -> Result<Scene> {
+    let bytes = fs::read(path).map_err(|source| Error::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    parse(&bytes, &path.display().to_string())
+}
+
+/// The checkpoint file's bytes for `scene` (validated first).
+pub fn to_bytes(scene: &Scene) -> Result<Vec<u8>> {
+    let header = encode_header(scene)?;
+    let mut out = Vec::with_capacity(header.len() + data_len(scene));
+    out.extend_from_slice(&header);
+    write_data(scene, &mut out).map_err(|source| Error::Io {
+        path: "<memory>".into(),
+        source,
+    })?;
+    Ok(out)
+}
+
+/// Parses and fully validates checkpoint bytes (see [`load`]).
+pub fn from_bytes(bytes: &[u8]) -> Result<Scene> {
+    parse(bytes, "<memory>")
+}
+
+// ---------------------------------------------------------------------------------------
+// Writing
+
+/// Shapes and byte sizes of the tensors, in [`TENSORS`] order.
+fn shapes(scene: &Scene) -> [(Vec<usize>, usize); 5] {
+    let n = scene.num_voxels();
+    let k = scene.shs_per_voxel();
+    let m = scene.num_grid_points();
+    [
+        (vec![n], n * 8),
+        (vec![m], m * 4),
+        (vec![n, 3], n * 12),
+        (vec![n, k, 3], n * k * 12),
+        (vec![n], n),
+    ]
+}
+
+fn data_len(scene: &Scene) -> usize {
+    shapes(scene).iter().map(|s| s.1).sum()
+}
+
+/// Validates the scene and returns the length prefix plus the padded JSON header.
+fn encode_header(scene: &Scene) -> Result<Vec<u8>> {
+    scene.validate().map_err(|e| match e {
+        Error::Invalid(m) => Error::Invalid(format!("refusing to save an invalid scene: {m}")),
+        e => e,
+    })?;
+    let mut header = serde_json::Map::new();
+    let mut meta = serde_json::Map::new();
+    let vec3 = |v: [f32; 3]| format!("[{},{},{}]", num(v[0]), num(v[1]), num(v[2]));
+    meta.insert("format".into(), FORMAT.into());
+    meta.insert("scene_center".into(), vec3(scene.center).into());
+    meta.insert("scene_extent".into(), num(scene.extent).into());
+    meta.insert("sh_degree".into(), scene.sh_degree.to_string().into());
+    meta.insert("background".into(), vec3(scene.background).into());
+    header.insert("__metadata__".into(), Value::Object(meta));
+    let mut offset = 0usize;
+    for ((name, dtype, _), (shape, bytes)) in TENSORS.iter().zip(shapes(scene)) {
+        header.insert(
+            (*name).into(),
+            serde_json::json!({
+                "dtype": dtype,
+                "shape": shape,
+                "data_offsets": [offset, offset + bytes],
+            }),
+        );
+        offset += bytes;
+    }
+    let mut json = serde_json::to_vec(&Value::Object(header))
+        .map_err(|e| Error::Invalid(format!("cannot encode the checkpoint header: {e}")))?;
+    while (8 + json.len()) % 8 != 0 {
+        json.push(b' ');
+    }
+    let mut out = Vec::with_capacity(8 + json.len());
+    out.extend_from_slice(&(json.len() as u64).to_le_bytes());
+    out.extend_from_slice(&json);
+    Ok(out)
+}
+
+/// Shortest decimal text that parses back to the identical `f32` (a valid JSON number):
+/// plain notation for ordinary magnitudes, exponent notation for tiny or huge ones.
+fn num(v: f32) -> String {
+    let a = v.abs();
+    if a != 0.0 && !(1e-5..1e16).contains(&a) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// Writes the data buffer (tensors in [`TENSORS`] order, little-endian).
+fn write_data(scene: &Scene, w: &mut impl Write) -> io::Result<()> {
+    if cfg!(target_endian = "little") {
+        w.write_all(bytemuck::cast_slice(&scene.octpath))?;
+        w.write_all(bytemuck::cast_slice(&scene.geo))?;
+        w.write_all(bytemuck::cast_slice(&scene.sh0))?;
+        w.write_all(bytemuck::cast_slice(&scene.shs))?;
+    } else {
+        for v in &scene.octpath {
+            w.write_all(&v.to_le_bytes())?;
+        }
+        let sh0: &[f32] = bytemuck::cast_slice(&scene.sh0);
+        for v in scene.geo.iter().chain(sh0).chain(&scene.shs) {
+            w.write_all(&v.to_le_bytes())?;
+        }
+    }
+    w.write_all(&scene.octlevel)
+}
+
+// ---------------------------------------------------------------------------------------
+// Reading
+
+fn parse(bytes: &[u8], name: &str) -> Result<Scene> {
+    parse_inner(bytes).map_err(|m| Error::Invalid(format!("checkpoint {name}: {m}")))
+}
+
+/// A JSON object kept as its entries in file order, so duplicate keys can be detected
+/// (a plain map would silently keep the last one).
+struct Entries<T>(Vec<(String, T)>);
+
+impl<'de, T: Deserialize<'de>> Deserialize<'de> for Entries<T> {
+    fn deserialize<D: Deserializer<'de>>(d: D) -> std::result::Result<Self, D::Error> {
+        struct V<T>(std::marker::PhantomData<T>);
+        impl<'de, T: Deserialize<'de>> Visitor<'de> for V<T> {
+            type Value = Entries<T>;
+            fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+                f.write_str("a JSON object")
+            }
+            fn visit_map<A: MapAccess<'de>>(
+                self,
+                mut a: A,
+            ) -> std::result::Result<Self::Value, A::Error> {
+                let mut v = Vec::new();
+                while let Some(e) = a.next_entry::<String, T>()? {
+                    v.push(e);
+                }
+                Ok(Entries(v))
+            }
+        }
+        d.deserialize_map(V(std::marker::PhantomData))
+    }
+}
+
+impl<T> Entries<T> {
+    fn check_unique(&self, what: &str) -> std::result::Result<(), String> {
+        let mut keys: Vec<&str> = self.0.iter().map(|(k, _)| k.as_str()).collect();
+        keys.sort_unstable();
+        match keys.windows(2).find(|w| w[0] == w[1]) {
+            Some(w) => Err(format!("{what} has the key `{}` more than once", w[0])),
+            None => Ok(()),
+        }
+    }
+
+    fn get(&self, key: &str) -> Option<&T> {
+        self.0.iter().find(|(k, _)| k == key).map(|(_, v)| v)
+    }
+}
+
+/// One tensor's header entry, checked against its expected dtype.
+struct TensorInfo {
+    shape: Vec<u64>,
+    begin: u64,
+    end: u64,
+}
+
+type Msg<T> = std::result::Result<T, String>;
+
+fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
+    // --- length prefix and header JSON
+    if bytes.len() < 8 {
+        return Err(format!(
+            "file is {} bytes, too short for the 8-byte header length",
+            bytes.len()
+        ));
+    }
+    let mut prefix = [0u8; 8];
+    prefix.copy_from_slice(&bytes[..8]);
+    let n = u64::from_le_bytes(prefix);
+    if n > MAX_HEADER_BYTES {
+        return Err(format!(
+            "header length {n} is absurd (more than {MAX_HEADER_BYTES} bytes): not a checkpoint, or corrupt"
+        ));
+    }
+    let rest = (bytes.len() - 8) as u64;
+    if n > rest {
+        return Err(format!(
+            "header length {n} runs beyond the end of the file ({rest} bytes after the length prefix): truncated or corrupt"
+        ));
+    }
+    let n = n as usize;
+    let text = std::str::from_utf8(&bytes[8..8 + n])
+        .map_err(|e| format!("header is not valid UTF-8: {e}"))?;
+    let top: Entries<Entries<Value>> =
+        serde_json::from_str(text).map_err(|e| format!("header is malformed JSON: {e}"))?;
+    top.check_unique("header")?;
+    for (key, _) in &top.0 {
+        if key != "__metadata__" && !TENSORS.iter().any(|t| t.0 == key) {
+            return Err(format!(
+                "unknown tensor `{key}` in the header (expected only {})",
+                TENSORS.map(|t| format!("`{}`", t.0)).join(", ")
+            ));
+        }
+    }
+    let data = &bytes[8 + n..];
+
+    // --- metadata
+    let meta = top
+        .get("__metadata__")
+        .ok_or("header has no `__metadata__` (not an svraster checkpoint?)")?;
+    meta.check_unique("`__metadata__`")?;
+    let meta_str = |key: &str| -> Msg<&str> {
+        match meta.get(key) {
+            None => Err(format!("metadata key `{key}` is missing")),
+            Some(Value::String(s)) => Ok(s.as_str()),
+            Some(v) => Err(format!("metadata `{key}` must be a string, got {v}")),
+        }
+    };
+    for (key, v) in &meta.0 {
+        if !v.is_string() {
+            return Err(format!("metadata `{key}` must be a string, got {v}"));
+        }
+    }
+    let format = meta_str("format")?;
+    if format != FORMAT {
+        return Err(format!(
+            "metadata `format` is `{format}`, expected `{FORMAT}` (unsupported format or version)"
+        ));
+    }
+    let sh_text = meta_str("sh_degree")?;
+    let sh_degree: u32 = sh_text
+        .trim()
+        .parse()
+        .map_err(|_| format!("metadata `sh_degree` is `{sh_text}`, not an integer"))?;
+    if sh_degree > MAX_SH_DEGREE {
+        return Err(format!(
+            "metadata `sh_degree` is {sh_degree}, outside 0..={MAX_SH_DEGREE}"
+        ));
+    }
+    let center = parse_vec3("scene_center", meta_str("scene_center")?)?;
+    let extent = parse_f32("scene_extent", meta_str("scene_extent")?)?;
+    if extent <= 0.0 {
+        return Err(format!("metadata `scene_extent` is {extent}, must be > 0"));
+    }
+    let background = parse_vec3("background", meta_str("background")?)?;
+
+    // --- tensor entries
+    let mut infos = Vec::with_capacity(TENSORS.len());
+    for (name, dtype, _) in TENSORS {
+        let entry = top
+            .get(name)
+            .ok_or_else(|| format!("tensor `{name}` is missing"))?;
+        infos.push(tensor_info(name, dtype, entry, data.len() as u64)?);
+    }
+    let [octpath_i, geo_i, sh0_i, shs_i, octlevel_i] = &infos[..] else {
+        return Err("internal error: tensor table".into());
+    };
+    let k = (sh_coeffs(sh_degree) - 1) as u64;
+    let nv = match octpath_i.shape[..] {
+        [nv] => nv,
+        _ => return Err(shape_msg("octpath", &octpath_i.shape, "[N]")),
+    };
+    let want = |name: &str, info: &TensorInfo, expect: &[u64], form: &str| -> Msg<()> {
+        if info.shape.len() != expect.len() {
+            return Err(shape_msg(name, &info.shape, form));
+        }
+        if info.shape != expect {
+            return Err(format!(
+                "tensor `{name}` has shape {:?}, expected {expect:?} ({form} with N = {nv} voxels from `octpath`{})",
+                info.shape,
+                if name == "shs" { format!(", sh_degree {sh_degree}") } else { String::new() }
+            ));
+        }
+        Ok(())
+    };
+    want("octlevel", octlevel_i, &[nv], "[N]")?;
+    want("sh0", sh0_i, &[nv, 3], "[N, 3]")?;
+    want("shs", shs_i, &[nv, k, 3], "[N, (D+1)²−1, 3]")?;
+    if geo_i.shape.len() != 1 {
+        return Err(shape_msg("geo_grid_pts", &geo_i.shape, "[M]"));
+    }
+
+    // --- data buffer: sizes, bounds, tiling
+    for ((name, _, esize), info) in TENSORS.iter().zip(&infos) {
+        let size = info
+            .shape
+            .iter()
+            .try_fold(*esize as u64, |a, &d| a.checked_mul(d))
+            .ok_or_else(|| format!("tensor `{name}` shape {:?} is absurdly large", info.shape))?;
+        if info.end - info.begin != size {
+            return Err(format!(
+                "tensor `{name}`: data_offsets [{}, {}] span {} bytes but shape {:?} needs {size}",
+                info.begin,
+                info.end,
+                info.end - info.begin,
+                info.shape
+            ));
+        }
+    }
+    let mut order: Vec<usize> = (0..TENSORS.len()).collect();
+    order.sort_by_key(|&i| (infos[i].begin, infos[i].end));
+    let mut pos = 0u64;
+    let mut prev: Option<usize> = None;
+    for &i in &order {
+        let info = &infos[i];
+        if info.begin < pos {
+            let p = prev.map_or("?", |p| TENSORS[p].0);
+            return Err(format!(
+                "tensors `{p}` and `{}` overlap in the data buffer (byte {} is inside `{p}`)",
+                TENSORS[i].0, info.begin
+            ));
+        }
+        if info.begin > pos {
+            return Err(format!(
+                "gap in the data buffer: bytes {pos}..{} belong to no tensor",
+                info.begin
+            ));
+        }
+        pos = info.end;
+        prev = Some(i);
+    }
+    if pos != data.len() as u64 {
+        return Err(format!(
+            "gap in the data buffer: {} trailing bytes after the last tensor belong to no tensor",
+            data.len() as u64 - pos
+        ));
+    }
+
+    // --- decode
+    let slice = |info: &TensorInfo| &data[info.begin as usize..info.end as usize];
+    let octpath: Vec<u64> = slice(octpath_i)
+        .chunks_exact(8)
+        .map(|c| u64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+        .collect();
+    let octlevel: Vec<u8> = slice(octlevel_i).to_vec();
+    let f32s = |info: &TensorInfo| -> Vec<f32> {
+        slice(info)
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    };
+    let geo = f32s(geo_i);
+    let sh0: Vec<[f32; 3]> = f32s(sh0_i)
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+    let shs = f32s(shs_i);
+    if let Some(i) = geo.iter().position(|v| !v.is_finite()) {
+        return Err(format!("geo_grid_pts[{i}] is not finite ({})", geo[i]));
+    }
+    if let Some(i) = sh0.iter().position(|v| v.iter().any(|x| !x.is_finite())) {
+        return Err(format!("sh0[{i}] is not finite ({:?})", sh0[i]));
+    }
+    if let Some(i) = shs.iter().position(|v| !v.is_finite()) {
+        return Err(format!(
+            "shs value {i} (voxel {}) is not finite ({})",
+            i / (3 * k.max(1) as usize),
+            shs[i]
+        ));
+    }
+
+    // --- voxels
+    if let Some(i) = octlevel
+        .iter()
+        .position(|&l| !(1..=MAX_LEVEL as u8).contains(&l))
+    {
+        return Err(format!(
+            "octlevel[{i}] is {}, outside 1..={MAX_LEVEL}",
+            octlevel[i]
+        ));
+    }
+    for (i, (&p, &l)) in octpath.iter().zip(&octlevel).enumerate() {
+        let low = 3 * (MAX_LEVEL - l as u32);
+        if p >> 48 != 0 || (low > 0 && p & ((1u64 << low) - 1) != 0) {
+            return Err(format!(
+                "octpath[{i}] = {p:#x} has bits outside the path of its level {l} (3 bits per level from bit 47 down)"
+            ));
+        }
+    }
+    // Checks overlap/duplicates and builds the unique, sorted grid points.
+    let mut scene =
+        Scene::from_voxels(center, extent, 0, octpath, octlevel, 0.0).map_err(|e| match e {
+            Error::Invalid(m) => m,
+            e => e.to_string(),
+        })?;
+    if scene.grid_keys.len() != geo.len() {
+        return Err(format!(
+            "geo_grid_pts has {} values but the voxels have {} unique corners (grid points)",
+            geo.len(),
+            scene.grid_keys.len()
+        ));
+    }
+    scene.sh_degree = sh_degree;
+    scene.background = background;
+    scene.geo = geo;
+    scene.sh0 = sh0;
+    scene.shs = shs;
+    scene.validate().map_err(|e| match e {
+        Error::Invalid(m) => m,
+        e => e.to_string(),
+    })?;
+    Ok(scene)
+}
+
+fn shape_msg(name: &str, shape: &[u64], form: &str) -> String {
+    format!(
+        "tensor `{name}` has rank {} (shape {shape:?}), expected rank {} ({form})",
+        shape.len(),
+        form.matches(',').count() + 1
+    )
+}
+
+/// Checks one tensor entry's fields and dtype; offsets must lie within the data buffer.
+fn tensor_info(name: &str, dtype: &str, entry: &Entries<Value>, data_len: u64) -> Msg<TensorInfo> {
+    entry.check_unique(&format!("tensor `{name}`"))?;
+    for (key, _) in &entry.0 {
+        if !["dtype", "shape", "data_offsets"].contains(&key.as_str()) {
+            return Err(format!("tensor `{name}` has an unknown field `{key}`"));
+        }
+    }
+    let field = |key: &str| {
+        entry
+            .get(key)
+            .ok_or_else(|| format!("tensor `{name}` has no `{key}`"))
+    };
+    match field("dtype")? {
+        Value::String(s) if s == dtype => {}
+        v => {
+            return Err(format!(
+                "tensor `{name}` has dtype {v}, expected \"{dtype}\""
+            ))
+        }
+    }
+    let ints = |key: &str| -> Msg<Vec<u64>> {
+        let v = field(key)?;
+        v.as_array()
+            .and_then(|a| a.iter().map(Value::as_u64).collect::<Option<Vec<u64>>>())
+            .ok_or_else(|| {
+                format!(
+                    "tensor `{name}`: `{key}` must be an array of non-negative integers, got {v}"
+                )
+            })
+    };
+    let shape = ints("shape")?;
+    let offsets = ints("data_offsets")?;
+    let [begin, end] = offsets[..] else {
+        return Err(format!(
+            "tensor `{name}`: `data_offsets` must be [begin, end], got {offsets:?}"
+        ));
+    };
+    if end < begin {
+        return Err(format!(
+            "tensor `{name}`: data_offsets end {end} < begin {begin}"
+        ));
+    }
+    if end > data_len {
+        return Err(format!(
+            "tensor `{name}`: data_offsets [{begin}, {end}] out of bounds of the {data_len}-byte data buffer (truncated file?)"
+        ));
+    }
+    Ok(TensorInfo { shape, begin, end })
+}
+
+fn parse_f32(key: &str, s: &str) -> Msg<f32> {
+    let v: f32 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("metadata `{key}`: `{s}` is not a number"))?;
+    if !v.is_finite() {
+        return Err(format!("metadata `{key}`: `{s}` is not finite"));
+    }
+    Ok(v)
+}
+
+fn parse_vec3(key: &str, s: &str) -> Msg<[f32; 3]> {
+    let inner = s
+        .trim()
+        .strip_prefix('[')
+        .and_then(|t| t.strip_suffix(']'))
+        .ok_or_else(|| format!("metadata `{key}` is `{s}`, expected a JSON array [x,y,z]"))?;
+    let parts: Vec<&str> = inner.split(',').collect();
+    if parts.len() != 3 {
+        return Err(format!(
+            "metadata `{key}` is `{s}`, expected exactly 3 numbers [x,y,z]"
+        ));
+    }
+    Ok([
+        parse_f32(key, parts[0])?,
+        parse_f32(key, parts[1])?,
+        parse_f32(key, parts[2])?,
+    ])
+}

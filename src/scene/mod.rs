@@ -1,0 +1,365 @@
+//! The sparse-voxel model (paper §3.1.1, supp. A.1).
+//!
+//! Voxels are leaves of an octree *layout* without any tree structure: each voxel is an
+//! `(octpath, level)` pair stored in a flat array in arbitrary order. `octpath` is the
+//! Morton code of the paper's Listing 1: 3 bits per level (`x<<2 | y<<1 | z`), level 1
+//! in the top three bits of 48, levels below the voxel's own level zero.
+//!
+//! Densities live on *grid points*: the unique voxel corners, keyed by their integer
+//! coordinates at the finest level (`x<<34 | y<<17 | z`, each coordinate 0..=65536).
+//! Adjacent voxels share corners, which makes the density field continuous. The grid
+//! points are kept sorted by key, and each voxel resolves its 8 corners (corner order
+//! `x<<2 | y<<1 | z`) to indices into that array. Nothing here is dense in 3-D: memory
+//! follows the number of voxels.
+
+pub mod checkpoint;
+
+use crate::{Error, Result};
+
+/// Deepest octree level (finest grid 65536³).
+pub const MAX_LEVEL: u32 = 16;
+/// Grid-point coordinates at the finest level run over `0..=GRID_MAX`.
+pub const GRID_MAX: u32 = 1 << MAX_LEVEL;
+/// Highest supported SH degree.
+pub const MAX_SH_DEGREE: u32 = 3;
+
+/// Number of SH coefficients (per colour channel) of degree `d`: `(d+1)²`.
+pub fn sh_coeffs(degree: u32) -> usize {
+    ((degree + 1) * (degree + 1)) as usize
+}
+
+/// Morton code of voxel index `(i, j, k)` at `level` (paper Listing 1).
+pub fn octpath_from_ijk(ijk: [u32; 3], level: u32) -> u64 {
+    debug_assert!((1..=MAX_LEVEL).contains(&level));
+    let mut path = 0u64;
+    for n in 0..level {
+        let bits =
+            (((ijk[0] >> n) & 1) << 2 | ((ijk[1] >> n) & 1) << 1 | ((ijk[2] >> n) & 1)) as u64;
+        path |= bits << (3 * n);
+    }
+    path << (3 * (MAX_LEVEL - level))
+}
+
+/// Voxel index `(i, j, k)` at `level` of a Morton code (inverse of [`octpath_from_ijk`]).
+pub fn ijk_from_octpath(path: u64, level: u32) -> [u32; 3] {
+    let mut p = path >> (3 * (MAX_LEVEL - level));
+    let mut ijk = [0u32; 3];
+    for n in 0..level {
+        ijk[0] |= (((p >> 2) & 1) as u32) << n;
+        ijk[1] |= (((p >> 1) & 1) as u32) << n;
+        ijk[2] |= ((p & 1) as u32) << n;
+        p >>= 3;
+    }
+    ijk
+}
+
+/// Key of a grid point from integer coordinates at the finest level (each 0..=65536).
+pub fn corner_key(c: [u32; 3]) -> u64 {
+    (c[0] as u64) << 34 | (c[1] as u64) << 17 | c[2] as u64
+}
+
+/// Coordinates of a grid-point key (inverse of [`corner_key`]).
+pub fn key_coords(key: u64) -> [u32; 3] {
+    let m = (1u64 << 17) - 1;
+    [
+        ((key >> 34) & m) as u32,
+        ((key >> 17) & m) as u32,
+        (key & m) as u32,
+    ]
+}
+
+/// Integer coordinates (finest level) of a voxel's minimum corner, and its edge length
+/// in finest-level units.
+pub fn voxel_fine_box(path: u64, level: u32) -> ([u32; 3], u32) {
+    let ijk = ijk_from_octpath(path, level);
+    let shift = MAX_LEVEL - level;
+    (
+        [ijk[0] << shift, ijk[1] << shift, ijk[2] << shift],
+        1 << shift,
+    )
+}
+
+/// The 8 grid-point keys of a voxel, in corner order `x<<2 | y<<1 | z`.
+pub fn voxel_corner_keys(path: u64, level: u32) -> [u64; 8] {
+    let (o, s) = voxel_fine_box(path, level);
+    std::array::from_fn(|c| {
+        corner_key([
+            o[0] + s * ((c as u32 >> 2) & 1),
+            o[1] + s * ((c as u32 >> 1) & 1),
+            o[2] + s * (c as u32 & 1),
+        ])
+    })
+}
+
+/// A sparse-voxel radiance field.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Scene {
+    /// Centre of the root cube in world space.
+    pub center: [f32; 3],
+    /// Full edge length of the root cube.
+    pub extent: f32,
+    /// SH degree 0..=3.
+    pub sh_degree: u32,
+    /// Background colour composited behind the voxels.
+    pub background: [f32; 3],
+    /// Per voxel: Morton code (Listing 1).
+    pub octpath: Vec<u64>,
+    /// Per voxel: octree level 1..=16.
+    pub octlevel: Vec<u8>,
+    /// Unique grid-point keys, strictly ascending.
+    pub grid_keys: Vec<u64>,
+    /// Raw density per grid point (activation `explin` applies after interpolation).
+    pub geo: Vec<f32>,
+    /// Per voxel: indices of its 8 corners into `grid_keys`/`geo` (derived data).
+    pub corners: Vec<[u32; 8]>,
+    /// Per voxel: degree-0 SH coefficient per channel.
+    pub sh0: Vec<[f32; 3]>,
+    /// Per voxel: higher-degree SH, `[N][(D+1)²−1][3]` flattened.
+    pub shs: Vec<f32>,
+}
+
+impl Scene {
+    /// Builds a scene from voxels: creates the unique grid points (density `geo_init`)
+    /// and resolves corners; SH start at zero. Validates the voxel set.
+    pub fn from_voxels(
+        center: [f32; 3],
+        extent: f32,
+        sh_degree: u32,
+        octpath: Vec<u64>,
+        octlevel: Vec<u8>,
+        geo_init: f32,
+    ) -> Result<Scene> {
+        if octpath.len() != octlevel.len() {
+            return Err(Error::Invalid(format!(
+                "{} octpaths but {} levels",
+                octpath.len(),
+                octlevel.len()
+            )));
+        }
+        check_voxels(&octpath, &octlevel)?;
+        let mut keys: Vec<u64> = Vec::with_capacity(octpath.len() * 2);
+        for (&p, &l) in octpath.iter().zip(&octlevel) {
+            keys.extend_from_slice(&voxel_corner_keys(p, l as u32));
+        }
+        keys.sort_unstable();
+        keys.dedup();
+        let n = octpath.len();
+        let coeffs = sh_coeffs(sh_degree.min(MAX_SH_DEGREE)) - 1;
+        let mut scene = Scene {
+            center,
+            extent,
+            sh_degree,
+            background: [0.0; 3],
+            geo: vec![geo_init; keys.len()],
+            grid_keys: keys,
+            corners: Vec::new(),
+            octpath,
+            octlevel,
+            sh0: vec![[0.0; 3]; n],
+            shs: vec![0.0; n * coeffs * 3],
+        };
+        scene.resolve_corners()?;
+        scene.validate()?;
+        Ok(scene)
+    }
+
+    pub fn num_voxels(&self) -> usize {
+        self.octpath.len()
+    }
+
+    pub fn num_grid_points(&self) -> usize {
+        self.grid_keys.len()
+    }
+
+    /// Deepest level in use (0 for an empty scene).
+    pub fn max_level(&self) -> u32 {
+        self.octlevel.iter().copied().max().unwrap_or(0) as u32
+    }
+
+    /// Higher-degree SH coefficients per voxel and channel.
+    pub fn shs_per_voxel(&self) -> usize {
+        sh_coeffs(self.sh_degree) - 1
+    }
+
+    /// Edge length of voxel `i` in world units.
+    pub fn voxel_size(&self, i: usize) -> f64 {
+        self.extent as f64 * (0.5f64).powi(self.octlevel[i] as i32)
+    }
+
+    /// Minimum corner of voxel `i` in world units.
+    pub fn voxel_min(&self, i: usize) -> [f64; 3] {
+        let (o, _) = voxel_fine_box(self.octpath[i], self.octlevel[i] as u32);
+        self.fine_to_world(o)
+    }
+
+    /// Centre of voxel `i` in world units.
+    pub fn voxel_center(&self, i: usize) -> [f64; 3] {
+        let m = self.voxel_min(i);
+        let h = 0.5 * self.voxel_size(i);
+        [m[0] + h, m[1] + h, m[2] + h]
+    }
+
+    /// World position of integer finest-level coordinates.
+    pub fn fine_to_world(&self, c: [u32; 3]) -> [f64; 3] {
+        let unit = self.extent as f64 / GRID_MAX as f64;
+        std::array::from_fn(|a| {
+            self.center[a] as f64 - 0.5 * self.extent as f64 + c[a] as f64 * unit
+        })
+    }
+
+    /// Resolves every voxel's 8 corner keys to grid-point indices.
+    pub fn resolve_corners(&mut self) -> Result<()> {
+        let mut corners = Vec::with_capacity(self.octpath.len());
+        for (i, (&p, &l)) in self.octpath.iter().zip(&self.octlevel).enumerate() {
+            let keys = voxel_corner_keys(p, l as u32);
+            let mut idx = [0u32; 8];
+            for c in 0..8 {
+                idx[c] = self.grid_keys.binary_search(&keys[c]).map_err(|_| {
+                    Error::Invalid(format!(
+                        "voxel {i}: corner {c} (grid key {:#x}) is not among the grid points",
+                        keys[c]
+                    ))
+                })? as u32;
+            }
+            corners.push(idx);
+        }
+        self.corners = corners;
+        Ok(())
+    }
+
+    /// Checks every invariant of the model; the error names the first problem found.
+    pub fn validate(&self) -> Result<()> {
+        let n = self.octpath.len();
+        let bad = |m: String| Err(Error::Invalid(m));
+        if !self.extent.is_finite() || self.extent <= 0.0 {
+            return bad(format!(
+                "scene_extent must be finite and > 0, got {}",
+                self.extent
+            ));
+        }
+        if self.center.iter().any(|c| !c.is_finite()) {
+            return bad(format!("scene_center is not finite: {:?}", self.center));
+        }
+        if self.background.iter().any(|c| !c.is_finite()) {
+            return bad(format!("background is not finite: {:?}", self.background));
+        }
+        if self.sh_degree > MAX_SH_DEGREE {
+            return bad(format!(
+                "sh_degree {} is above the supported maximum {MAX_SH_DEGREE}",
+                self.sh_degree
+            ));
+        }
+        if self.octlevel.len() != n || self.sh0.len() != n || self.corners.len() != n {
+            return bad(format!(
+                "per-voxel arrays disagree: octpath {n}, octlevel {}, sh0 {}, corners {}",
+                self.octlevel.len(),
+                self.sh0.len(),
+                self.corners.len()
+            ));
+        }
+        if self.shs.len() != n * self.shs_per_voxel() * 3 {
+            return bad(format!(
+                "shs has {} values, expected {n} voxels × {} coefficients × 3",
+                self.shs.len(),
+                self.shs_per_voxel()
+            ));
+        }
+        if self.geo.len() != self.grid_keys.len() {
+            return bad(format!(
+                "{} grid-point densities for {} grid points",
+                self.geo.len(),
+                self.grid_keys.len()
+            ));
+        }
+        if n > MAX_VOXELS {
+            return bad(format!(
+                "{n} voxels: at most {MAX_VOXELS} are supported (29-bit voxel ids)"
+            ));
+        }
+        check_voxels(&self.octpath, &self.octlevel)?;
+        for w in self.grid_keys.windows(2) {
+            if w[0] >= w[1] {
+                return bad(format!(
+                    "grid-point keys are not strictly ascending ({:#x} then {:#x})",
+                    w[0], w[1]
+                ));
+            }
+        }
+        for &k in &self.grid_keys {
+            let c = key_coords(k);
+            if k >> 51 != 0 || c.iter().any(|&v| v > GRID_MAX) {
+                return bad(format!(
+                    "grid-point key {k:#x} has a coordinate outside 0..={GRID_MAX}"
+                ));
+            }
+        }
+        let mut used = vec![false; self.grid_keys.len()];
+        for i in 0..n {
+            let keys = voxel_corner_keys(self.octpath[i], self.octlevel[i] as u32);
+            for (c, key) in keys.iter().enumerate() {
+                let g = self.corners[i][c] as usize;
+                if g >= self.grid_keys.len() || self.grid_keys[g] != *key {
+                    return bad(format!(
+                        "voxel {i}: corner {c} does not resolve to its grid point"
+                    ));
+                }
+                used[g] = true;
+            }
+        }
+        if let Some(g) = used.iter().position(|u| !u) {
+            return bad(format!(
+                "grid point {g} (key {:#x}) is a corner of no voxel",
+                self.grid_keys[g]
+            ));
+        }
+        if let Some(g) = self.geo.iter().position(|v| !v.is_finite()) {
+            return bad(format!("geo_grid_pts[{g}] is not finite ({})", self.geo[g]));
+        }
+        if let Some(i) = self
+            .sh0
+            .iter()
+            .position(|v| v.iter().any(|x| !x.is_finite()))
+        {
+            return bad(format!("sh0[{i}] is not finite ({:?})", self.sh0[i]));
+        }
+        if let Some(i) = self.shs.iter().position(|v| !v.is_finite()) {
+            return bad(format!("shs value {i} is not finite ({})", self.shs[i]));
+        }
+        Ok(())
+    }
+}
+
+/// Voxel ids travel in 29 bits of the sort value (paper supp. B.1).
+pub const MAX_VOXELS: usize = 1 << 29;
+
+/// Levels in range, no bits below the level, no duplicate or overlapping voxels.
+fn check_voxels(octpath: &[u64], octlevel: &[u8]) -> Result<()> {
+    for (i, (&p, &l)) in octpath.iter().zip(octlevel).enumerate() {
+        if !(1..=MAX_LEVEL as u8).contains(&l) {
+            return Err(Error::Invalid(format!(
+                "voxel {i}: level {l} outside 1..={MAX_LEVEL}"
+            )));
+        }
+        let low = 3 * (MAX_LEVEL - l as u32);
+        if p >> 48 != 0 || (low > 0 && p & ((1u64 << low) - 1) != 0) {
+            return Err(Error::Invalid(format!(
+                "voxel {i}: octpath {p:#x} has bits outside the 48-bit path of level {l}"
+            )));
+        }
+    }
+    // Sorted by path, a voxel overlapping another is overlapped by its successor:
+    // a voxel's descendants form one contiguous range of paths starting at its own.
+    let mut order: Vec<usize> = (0..octpath.len()).collect();
+    order.sort_unstable_by_key(|&i| (octpath[i], octlevel[i]));
+    for w in order.windows(2) {
+        let (a, b) = (w[0], w[1]);
+        let span = 1u64 << (3 * (MAX_LEVEL - octlevel[a] as u32));
+        if octpath[b] < octpath[a] + span {
+            return Err(Error::Invalid(format!(
+                "voxels {a} (level {}) and {b} (level {}) overlap or are duplicates",
+                octlevel[a], octlevel[b]
+            )));
+        }
+    }
+    Ok(())
+}
