@@ -343,3 +343,258 @@ fn level16_voxels_far_from_the_origin() {
     }
     finish(&ctx);
 }
+
+/// A tile whose list holds ~393 000 entries: a column of 2 × 65 536 level-16 voxels seen
+/// end-on (the centre pixel's ray runs along one column). Lavapipe stops any
+/// invocation's loops after 65 535 iterations, so this only passes if compositing is
+/// split into chunks correctly (state carried between dispatches).
+#[test]
+fn tile_list_longer_than_the_loop_limit() {
+    let ctx = context();
+    let mut r = Renderer::new(&ctx).unwrap();
+    let mut paths = Vec::new();
+    for i in [32768u32, 32769] {
+        for k in 0..65536u32 {
+            paths.push(octpath_from_ijk([i, 32768, k], 16));
+        }
+    }
+    let levels = vec![16u8; paths.len()];
+    // explin(-4.55) ≈ 6.5e-3: α ≈ 3e-5 per voxel, above the 1e-5 skip threshold, and
+    // T ≈ 0.14 after one column, so no early stop.
+    let mut scene = Scene::from_voxels([0.0; 3], 3.0, 0, paths, levels, -4.55).unwrap();
+    for (i, c) in scene.sh0.iter_mut().enumerate() {
+        let k = (i % 65536) as f32 / 65536.0;
+        *c = [k * 3.0 - 1.5, 1.0 - k * 2.0, 0.3];
+    }
+    scene.background = [0.1, 0.2, 0.3];
+    let e = 2.0e-5;
+    let cam = Camera::look_at([e, e, -3.0], [e, e, 0.0], [0.0, 1.0, 0.0], 0.05, 17, 17);
+    let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+    let (img, stats) = r.render(&gpu, &cam, &RenderOptions::default()).unwrap();
+    println!("{stats:?}");
+    assert!(stats.max_tile_entries > 100_000, "{stats:?}");
+    assert!(stats.chunks > 1 || !ctx.info().is_cpu);
+    let refs = reference::render(&scene, &cam, 1);
+    let centre = (8 * 17 + 8) as usize;
+    assert_eq!(
+        refs[centre].hits, 65536,
+        "the centre ray runs along one column"
+    );
+    assert!(refs[centre].alpha > 0.5 && refs[centre].alpha < 0.99);
+    let err = compare(&img, &refs, "long tile");
+    assert_within(&err, "tile list of ~393k entries");
+    finish(&ctx);
+}
+
+#[test]
+fn image_sizes_from_1x1_to_4096x4096() {
+    let ctx = context();
+    let mut r = Renderer::new(&ctx).unwrap();
+    let mut rng = Rng(4242);
+    let scene = random_scene(&mut rng, 16, 1);
+    assert_eq!(scene.max_level(), 16);
+    let base = camera_outside(&mut rng, &scene, 64, 64);
+    let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+    for (w, h) in [(1, 1), (17, 9), (1, 33), (4096, 4096)] {
+        let cam = base.resized(w, h);
+        let (img, stats) = r.render(&gpu, &cam, &RenderOptions::default()).unwrap();
+        assert_eq!((img.width, img.height), (w, h));
+        // Up to 400 pixels (all of a small image) against the reference.
+        let mut prng = Rng(w as u64 * 7 + h as u64);
+        let n = (w * h).min(400);
+        let mut e = Errors::default();
+        for s in 0..n {
+            let (px, py) = if w * h <= 400 {
+                (s % w, s / w)
+            } else {
+                (prng.below(w as u64) as u32, prng.below(h as u64) as u32)
+            };
+            let rp = reference::render_pixel(&scene, &cam, px as f64 + 0.5, py as f64 + 0.5, 1);
+            let i = (py * w + px) as usize;
+            let one = Image {
+                width: 1,
+                height: 1,
+                rgb: vec![img.rgb[i]],
+                alpha: vec![img.alpha[i]],
+                depth: vec![img.depth[i]],
+                depth_median: vec![img.depth_median[i]],
+                normal: vec![img.normal[i]],
+            };
+            e = e.max(compare(&one, &[rp], "size"));
+        }
+        assert_within(
+            &e,
+            &format!(
+                "{w}×{h} ({} tiles, sort bits {})",
+                stats.tiles, stats.sort_bits
+            ),
+        );
+    }
+    // One pixel column more than 4096 needs more tiles than 64-bit keys leave room for
+    // next to level-16 Morton codes.
+    let err = r
+        .render(&gpu, &base.resized(4097, 4096), &RenderOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("tiles") && err.contains("level 16"), "{err}");
+    finish(&ctx);
+}
+
+#[test]
+fn empty_scene_renders_background() {
+    let ctx = context();
+    let mut r = Renderer::new(&ctx).unwrap();
+    let mut scene = Scene::from_voxels([0.0; 3], 2.0, 2, vec![], vec![], 0.0).unwrap();
+    scene.background = [0.25, 0.5, 1.0];
+    let cam = Camera::look_at([0.0, 0.0, 4.0], [0.0; 3], [0.0, 1.0, 0.0], 0.8, 23, 19);
+    let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+    let (img, stats) = r.render(&gpu, &cam, &RenderOptions::default()).unwrap();
+    assert_eq!(stats.entries, 0);
+    for i in 0..img.rgb.len() {
+        assert_eq!(img.rgb[i], [0.25, 0.5, 1.0]);
+        assert_eq!(img.alpha[i], 0.0);
+        assert_eq!(img.depth[i], 0.0);
+    }
+    finish(&ctx);
+}
+
+/// The reference's anti-aliasing downsample (tent filter of radius = scale).
+fn reference_downsample(src: &[RefPixel], sw: u32, sh: u32, w: u32, h: u32) -> Vec<RefPixel> {
+    let (sx, sy) = (sw as f64 / w as f64, sh as f64 / h as f64);
+    let (rx, ry) = (sx.max(1.0), sy.max(1.0));
+    let mut out = Vec::new();
+    for oy in 0..h {
+        for ox in 0..w {
+            let (cx, cy) = ((ox as f64 + 0.5) * sx, (oy as f64 + 0.5) * sy);
+            let mut acc = RefPixel::default();
+            let mut wsum = 0.0;
+            for y in 0..sh {
+                let wy = (1.0 - (y as f64 + 0.5 - cy).abs() / ry).max(0.0);
+                for x in 0..sw {
+                    let wx = (1.0 - (x as f64 + 0.5 - cx).abs() / rx).max(0.0);
+                    let wgt = wx * wy;
+                    if wgt == 0.0 {
+                        continue;
+                    }
+                    let p = &src[(y * sw + x) as usize];
+                    for c in 0..3 {
+                        acc.rgb[c] += wgt * p.rgb[c];
+                        acc.normal[c] += wgt * p.normal[c];
+                    }
+                    acc.alpha += wgt * p.alpha;
+                    acc.depth += wgt * p.depth;
+                    acc.depth_median += wgt * p.depth_median;
+                    acc.median_ambiguous |= p.median_ambiguous;
+                    wsum += wgt;
+                }
+            }
+            for c in 0..3 {
+                acc.rgb[c] /= wsum;
+                acc.normal[c] /= wsum;
+            }
+            acc.alpha /= wsum;
+            acc.depth /= wsum;
+            acc.depth_median /= wsum;
+            out.push(acc);
+        }
+    }
+    out
+}
+
+#[test]
+fn supersampling_matches_reference_downsample() {
+    let ctx = context();
+    let mut r = Renderer::new(&ctx).unwrap();
+    let mut rng = Rng(606);
+    let scene = random_scene(&mut rng, 8, 2);
+    let cam = camera_outside(&mut rng, &scene, 30, 22);
+    let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+    for ss in [1.5f32, 2.0, 3.0] {
+        let (img, stats) = r
+            .render(
+                &gpu,
+                &cam,
+                &RenderOptions {
+                    samples: 1,
+                    supersample: ss,
+                },
+            )
+            .unwrap();
+        assert_eq!((img.width, img.height), (30, 22));
+        let (rw, rh) = (stats.render_width, stats.render_height);
+        assert_eq!(rw, (30.0 * ss).round() as u32);
+        let hi = reference::render(&scene, &cam.resized(rw, rh), 1);
+        let refs = reference_downsample(&hi, rw, rh, 30, 22);
+        let e = compare(&img, &refs, "ss");
+        assert_within(&e, &format!("supersample {ss}"));
+    }
+    finish(&ctx);
+}
+
+/// Small composite chunks and a too-small entry capacity: the renderer must flag the
+/// shortfalls, grow, and produce exactly the image of a renderer with enough room.
+#[test]
+fn chunking_and_capacity_growth_give_identical_frames() {
+    let ctx = context();
+    let mut rng = Rng(808);
+    let scene = block_scene([0.1, -0.2, 0.3], 2.5, 5, -1.5);
+    let cam = Camera::look_at(
+        [2.1, 0.8, 1.8],
+        [0.1, -0.2, 0.3],
+        [0.0, 0.0, 1.0],
+        1.3,
+        800,
+        600,
+    );
+    let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+
+    let mut big = Renderer::new(&ctx).unwrap();
+    big.set_chunk_size(1 << 20);
+    big.reserve_entries(4 << 20).unwrap();
+    let (want, s_big) = big.render(&gpu, &cam, &RenderOptions::default()).unwrap();
+    assert_eq!(s_big.chunks, 1);
+
+    let mut small = Renderer::new(&ctx).unwrap();
+    small.set_chunk_size(50);
+    let cap0 = {
+        small
+            .prepare(&gpu, &cam, &RenderOptions::default())
+            .unwrap();
+        small.entry_capacity()
+    };
+    let (got, s) = small.render(&gpu, &cam, &RenderOptions::default()).unwrap();
+    println!(
+        "entries {} (initial capacity {cap0}), chunks {}, longest tile {}",
+        s.entries, s.chunks, s.max_tile_entries
+    );
+    assert!(
+        s.entries > cap0 as u64,
+        "the test must overflow the initial capacity"
+    );
+    assert!(small.entry_capacity() as u64 >= s.entries);
+    assert!(s.chunks > 1, "the test must need several chunks");
+    assert_eq!(got.rgb, want.rgb);
+    assert_eq!(got.alpha, want.alpha);
+    assert_eq!(got.depth, want.depth);
+    assert_eq!(got.depth_median, want.depth_median);
+    assert_eq!(got.normal, want.normal);
+    // And a sample of pixels against the reference.
+    let mut e = Errors::default();
+    for _ in 0..150 {
+        let (px, py) = (rng.below(800) as u32, rng.below(600) as u32);
+        let rp = reference::render_pixel(&scene, &cam, px as f64 + 0.5, py as f64 + 0.5, 1);
+        let i = (py * 800 + px) as usize;
+        let one = Image {
+            width: 1,
+            height: 1,
+            rgb: vec![got.rgb[i]],
+            alpha: vec![got.alpha[i]],
+            depth: vec![got.depth[i]],
+            depth_median: vec![got.depth_median[i]],
+            normal: vec![got.normal[i]],
+        };
+        e = e.max(compare(&one, &[rp], "grown"));
+    }
+    assert_within(&e, "grown renderer");
+    finish(&ctx);
+}

@@ -36,6 +36,33 @@ pub enum BenchCmd {
         #[arg(long)]
         json: bool,
     },
+    /// Forward rendering of a model over the views of a dataset split.
+    Render {
+        /// A .safetensors checkpoint, or a run directory holding model.safetensors.
+        model: std::path::PathBuf,
+        /// Blender-format dataset whose cameras are rendered.
+        #[arg(long)]
+        data: std::path::PathBuf,
+        #[arg(long, default_value = "test", value_parser = ["train", "val", "test"])]
+        split: String,
+        /// Downscale factor of the cameras' images.
+        #[arg(long, default_value_t = 1.0)]
+        downscale: f64,
+        /// Views used (the first N of the split).
+        #[arg(long, default_value_t = 5)]
+        views: usize,
+        /// Timed passes over the views (medians are over all timed frames).
+        #[arg(long, default_value_t = 3)]
+        runs: u32,
+        /// Samples per ray-voxel segment.
+        #[arg(long, default_value_t = 1)]
+        samples: u32,
+        /// Supersampling factor.
+        #[arg(long, default_value_t = 1.0)]
+        ss: f32,
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 fn parse_bits(s: &str) -> Result<Range<u32>, String> {
@@ -50,6 +77,30 @@ fn parse_bits(s: &str) -> Result<Range<u32>, String> {
 
 pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
     match cmd {
+        BenchCmd::Render {
+            model,
+            data,
+            split,
+            downscale,
+            views,
+            runs,
+            samples,
+            ss,
+            json,
+        } => bench_render(
+            ctx,
+            &model,
+            &data,
+            &split,
+            downscale,
+            views,
+            runs,
+            svraster::raster::RenderOptions {
+                samples,
+                supersample: ss,
+            },
+            json,
+        ),
         BenchCmd::Sort {
             n,
             bits,
@@ -226,4 +277,114 @@ fn stage_order(name: &str) -> (u32, String) {
         "sort.histogram" => (1, String::new()),
         _ => (2, format!("{:>8}", name)),
     }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn bench_render(
+    ctx: &Context,
+    model: &std::path::Path,
+    data: &std::path::Path,
+    split: &str,
+    downscale: f64,
+    views: usize,
+    runs: u32,
+    opts: svraster::raster::RenderOptions,
+    json: bool,
+) -> anyhow::Result<()> {
+    use svraster::raster::{Renderer, SceneGpu};
+    if runs == 0 || views == 0 {
+        bail!("--runs and --views must be at least 1");
+    }
+    let scene = super::render::load_model(model)?;
+    let mut cams = super::render::split_cameras(data, split, downscale, scene.background)?;
+    cams.truncate(views);
+    if cams.is_empty() {
+        bail!("split `{split}` of {} has no frames", data.display());
+    }
+    let gpu = SceneGpu::upload(ctx, &scene)?;
+    let mut r = Renderer::new(ctx)?;
+    let mut ts = Timestamps::new(ctx, 32)?;
+    // Warm-up: pipelines compiled, buffers grown to what every view needs.
+    for cam in &cams {
+        r.render_to_device(&gpu, cam, &opts, None)?;
+    }
+    let mut frame_ms = Vec::new();
+    let mut wall_ms = Vec::new();
+    let mut stages: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    let mut order: Vec<String> = Vec::new();
+    let (mut dup, mut per_tile, mut max_tile, mut entries) =
+        (Vec::new(), Vec::new(), 0u32, Vec::new());
+    let mut visible = Vec::new();
+    for _ in 0..runs {
+        for cam in &cams {
+            let t = Instant::now();
+            let st = r.render_to_device(&gpu, cam, &opts, Some(&mut ts))?;
+            wall_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            let s = ts.stages()?;
+            frame_ms.push(s.iter().map(|(_, ms)| ms).sum());
+            for (name, ms) in s {
+                if !order.contains(&name) {
+                    order.push(name.clone());
+                }
+                stages.entry(name).or_default().push(ms);
+            }
+            dup.push(st.entries as f64 / st.visible_voxels.max(1) as f64);
+            per_tile.push(st.entries as f64 / st.tiles as f64);
+            max_tile = max_tile.max(st.max_tile_entries);
+            entries.push(st.entries as f64);
+            visible.push(st.visible_voxels as f64);
+        }
+    }
+    let (w, h) = (cams[0].width, cams[0].height);
+    let stage_medians: Vec<(String, f64)> = order
+        .iter()
+        .map(|n| (n.clone(), median(&stages[n])))
+        .collect();
+    if json {
+        let obj = serde_json::json!({
+            "model": model.display().to_string(),
+            "voxels": scene.num_voxels(),
+            "width": w,
+            "height": h,
+            "views": cams.len(),
+            "frames_timed": frame_ms.len(),
+            "samples": opts.samples,
+            "supersample": opts.supersample,
+            "median_ms": median(&frame_ms),
+            "wall_median_ms": median(&wall_ms),
+            "stages_median_ms": stage_medians.iter().cloned().collect::<BTreeMap<_, _>>(),
+            "visible_voxels_median": median(&visible),
+            "entries_median": median(&entries),
+            "duplicates_per_visible_voxel_median": median(&dup),
+            "entries_per_tile_median": median(&per_tile),
+            "max_entries_per_tile": max_tile,
+            "device": ctx.info().name,
+        });
+        println!("{obj}");
+    } else {
+        println!(
+            "bench render: {} voxels, {w}×{h}, {} views × {runs} runs, K={}, ss={} on {}",
+            scene.num_voxels(),
+            cams.len(),
+            opts.samples,
+            opts.supersample,
+            ctx.info().name
+        );
+        println!(
+            "  median {:.2} ms per frame (GPU timestamps), {:.2} ms wall",
+            median(&frame_ms),
+            median(&wall_ms)
+        );
+        for (n, ms) in &stage_medians {
+            println!("    {n:<12} {ms:9.2} ms");
+        }
+        println!(
+            "  visible voxels {:.0}, entries {:.0}: {:.2} per visible voxel, {:.1} per tile (max {max_tile})",
+            median(&visible),
+            median(&entries),
+            median(&dup),
+            median(&per_tile)
+        );
+    }
+    Ok(())
 }

@@ -2,6 +2,9 @@
 
 mod bench;
 mod info;
+mod render;
+
+use std::path::PathBuf;
 
 use clap::{Parser, Subcommand};
 use svraster::gpu::{Context, ContextOptions};
@@ -32,6 +35,51 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Generate the built-in procedural scene (Blender-format dataset), build a
+    /// checkpoint from it and render its test views.
+    Demo {
+        /// Output directory (dataset in OUT/data, model, renders in OUT/renders).
+        #[arg(long, default_value = "demo_out")]
+        out: PathBuf,
+        /// Image edge in pixels.
+        #[arg(long, default_value_t = 200)]
+        size: u32,
+        /// Finest octree level of the voxelized scene (7 ≈ 66k voxels, 9 ≈ 1.1M).
+        #[arg(long, default_value_t = 7)]
+        level: u32,
+        /// Seed of the training camera positions.
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+    },
+    /// Render every frame of a dataset split with a model.
+    Render {
+        /// A .safetensors checkpoint, or a run directory holding model.safetensors.
+        model: PathBuf,
+        /// Blender-format dataset directory (transforms_{split}.json + images).
+        #[arg(long)]
+        data: PathBuf,
+        /// Split to render.
+        #[arg(long, default_value = "test", value_parser = ["train", "val", "test"])]
+        split: String,
+        /// Downscale factor of the images (area averaging; intrinsics scaled).
+        #[arg(long, default_value_t = 1.0)]
+        downscale: f64,
+        /// Output directory: one PNG per frame, named after the frame's file.
+        #[arg(long)]
+        out: PathBuf,
+        /// Also write NAME_depth.png.
+        #[arg(long)]
+        depth: bool,
+        /// Also write NAME_normal.png.
+        #[arg(long)]
+        normal: bool,
+        /// Samples per ray-voxel segment (1..=3).
+        #[arg(long, default_value_t = 1)]
+        samples: u32,
+        /// Supersampling factor (>= 1; anti-aliased downsample).
+        #[arg(long, default_value_t = 1.0)]
+        ss: f32,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -48,6 +96,46 @@ pub fn run() -> anyhow::Result<()> {
     match cli.cmd {
         Command::Info { json } => info::run(&ctx, json)?,
         Command::Bench { what } => bench::run(&ctx, what)?,
+        Command::Demo {
+            out,
+            size,
+            level,
+            seed,
+        } => render::run_demo(
+            &ctx,
+            render::DemoArgs {
+                out,
+                size,
+                level,
+                seed,
+            },
+        )?,
+        Command::Render {
+            model,
+            data,
+            split,
+            downscale,
+            out,
+            depth,
+            normal,
+            samples,
+            ss,
+        } => render::run_render(
+            &ctx,
+            render::RenderArgs {
+                model,
+                data,
+                split,
+                downscale,
+                out,
+                depth,
+                normal,
+                opts: svraster::raster::RenderOptions {
+                    samples,
+                    supersample: ss,
+                },
+            },
+        )?,
     }
     ctx.check_validation()?;
     Ok(())

@@ -1,5 +1,14 @@
 //! Datasets and cameras.
+//!
+//! - [`camera`]: the pinhole [`Camera`] and its conventions.
+//! - [`blender`]: Blender / NeRF-synthetic dataset loader.
+//! - [`image`]: PNG input and output.
+//! - [`demo`]: the built-in procedural demo scene (dataset writer and voxelizer).
 
+pub mod blender;
 pub mod camera;
+pub mod demo;
+pub mod image;
 
+pub use blender::{load_split, Dataset, Frame};
 pub use camera::Camera;

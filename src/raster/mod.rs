@@ -403,7 +403,7 @@ impl Renderer {
 
     /// Overrides the chunk size (tests use small chunks to exercise chunking).
     pub fn set_chunk_size(&mut self, entries: u32) {
-        self.chunk_size = entries.max(256);
+        self.chunk_size = entries.max(1);
     }
 
     /// Entry capacity of the key buffers.

@@ -1,0 +1,256 @@
+//! `svraster render` and `svraster demo` (the built-in procedural scene), plus the
+//! helpers they share with `bench render`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{bail, Context as _};
+use svraster::data::{self, demo, image, Camera};
+use svraster::gpu::Context;
+use svraster::raster::{Image, RenderOptions, Renderer, SceneGpu};
+use svraster::scene::{checkpoint, Scene};
+
+/// A model argument: a `.safetensors` file, or a run directory holding `model.safetensors`.
+pub fn model_path(model: &Path) -> anyhow::Result<PathBuf> {
+    let p = if model.is_dir() {
+        model.join("model.safetensors")
+    } else {
+        model.to_path_buf()
+    };
+    if !p.is_file() {
+        bail!(
+            "model {} not found: pass a .safetensors checkpoint or a run directory containing model.safetensors",
+            p.display()
+        );
+    }
+    Ok(p)
+}
+
+pub fn load_model(model: &Path) -> anyhow::Result<Scene> {
+    let p = model_path(model)?;
+    Ok(checkpoint::load(&p)?)
+}
+
+/// PSNR in dB of `a` against `b` on [0, 1] RGB (values clamped as when saved to PNG).
+pub fn psnr(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
+    let mut se = 0.0f64;
+    for (x, y) in a.iter().zip(b) {
+        for c in 0..3 {
+            let d = x[c].clamp(0.0, 1.0) as f64 - y[c].clamp(0.0, 1.0) as f64;
+            se += d * d;
+        }
+    }
+    let mse = se / (3 * a.len().max(1)) as f64;
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        -10.0 * mse.log10()
+    }
+}
+
+/// Writes `NAME.png` (rgb) and, on request, `NAME_depth.png` (expected depth, near =
+/// bright, background black, scaled between the 1st and 99th percentile) and
+/// `NAME_normal.png` (outward unit normal −∇density/|∇density| mapped to colour,
+/// n·0.5 + 0.5; the rendered normal channel is the paper's ∇density, which points into
+/// surfaces).
+pub fn write_image(
+    out: &Path,
+    name: &str,
+    img: &Image,
+    depth: bool,
+    normal: bool,
+) -> anyhow::Result<()> {
+    image::save_rgb_png(
+        &out.join(format!("{name}.png")),
+        img.width,
+        img.height,
+        &img.rgb,
+    )?;
+    if depth {
+        let d: Vec<f32> = img
+            .depth
+            .iter()
+            .zip(&img.alpha)
+            .map(|(&d, &a)| if a > 0.5 { d / a } else { f32::NAN })
+            .collect();
+        let mut valid: Vec<f32> = d.iter().copied().filter(|v| v.is_finite()).collect();
+        valid.sort_by(|a, b| a.total_cmp(b));
+        let (lo, hi) = if valid.is_empty() {
+            (0.0, 1.0)
+        } else {
+            (
+                valid[valid.len() / 100],
+                valid[(valid.len() * 99 / 100).min(valid.len() - 1)],
+            )
+        };
+        let span = (hi - lo).max(1e-6);
+        let g: Vec<f32> = d
+            .iter()
+            .map(|&v| {
+                if v.is_finite() {
+                    1.0 - 0.8 * ((v - lo) / span).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        image::save_gray_png(
+            &out.join(format!("{name}_depth.png")),
+            img.width,
+            img.height,
+            &g,
+        )?;
+    }
+    if normal {
+        let n: Vec<[f32; 3]> = img
+            .normal
+            .iter()
+            .map(|v| {
+                let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                if l < 1e-6 {
+                    [0.0; 3]
+                } else {
+                    [
+                        -v[0] / l * 0.5 + 0.5,
+                        -v[1] / l * 0.5 + 0.5,
+                        -v[2] / l * 0.5 + 0.5,
+                    ]
+                }
+            })
+            .collect();
+        image::save_rgb_png(
+            &out.join(format!("{name}_normal.png")),
+            img.width,
+            img.height,
+            &n,
+        )?;
+    }
+    Ok(())
+}
+
+pub struct RenderArgs {
+    pub model: PathBuf,
+    pub data: PathBuf,
+    pub split: String,
+    pub downscale: f64,
+    pub out: PathBuf,
+    pub depth: bool,
+    pub normal: bool,
+    pub opts: RenderOptions,
+}
+
+/// Renders every frame of a split; returns (mean PSNR against the photos, ms per frame).
+pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)> {
+    let scene = load_model(&a.model)?;
+    let ds = data::load_split(&a.data, &a.split, a.downscale, scene.background)?;
+    if ds.frames.is_empty() {
+        bail!("split `{}` of {} has no frames", a.split, a.data.display());
+    }
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("cannot create output directory {}", a.out.display()))?;
+    scene.validate()?;
+    let gpu = SceneGpu::upload(ctx, &scene)?;
+    let mut r = Renderer::new(ctx)?;
+    let mut total_psnr = 0.0;
+    let mut ms = 0.0;
+    for (i, f) in ds.frames.iter().enumerate() {
+        let t = Instant::now();
+        let (img, _) = r.render(&gpu, &f.camera, &a.opts)?;
+        ms += t.elapsed().as_secs_f64() * 1e3;
+        let p = psnr(&img.rgb, &f.rgb);
+        total_psnr += p;
+        write_image(&a.out, &f.name, &img, a.depth, a.normal)?;
+        eprint!(
+            "\r[{}/{}] {}: PSNR {p:.2} dB        ",
+            i + 1,
+            ds.frames.len(),
+            f.name
+        );
+    }
+    eprintln!();
+    let n = ds.frames.len() as f64;
+    Ok((total_psnr / n, ms / n))
+}
+
+pub fn run_render(ctx: &Context, a: RenderArgs) -> anyhow::Result<()> {
+    let (psnr, ms) = render_split(ctx, &a)?;
+    println!(
+        "rendered split `{}` to {}: mean PSNR {psnr:.2} dB against the photos, {ms:.1} ms per frame (wall, incl. read-back and PNG)",
+        a.split,
+        a.out.display()
+    );
+    Ok(())
+}
+
+pub struct DemoArgs {
+    pub out: PathBuf,
+    pub size: u32,
+    pub level: u32,
+    pub seed: u64,
+}
+
+/// Generates the procedural dataset, builds a checkpoint from the analytic scene (until
+/// training lands), and renders the test views.
+pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
+    let data_dir = a.out.join("data");
+    let opts = demo::DemoOptions {
+        width: a.size,
+        height: a.size,
+        seed: a.seed,
+        ..Default::default()
+    };
+    let t = Instant::now();
+    eprintln!(
+        "generating the demo dataset ({}×{}, {} train / {} val / {} test views) in {} …",
+        opts.width,
+        opts.height,
+        opts.train,
+        opts.val,
+        opts.test,
+        data_dir.display()
+    );
+    demo::write_dataset(&data_dir, &opts)?;
+    eprintln!("  done in {:.1} s", t.elapsed().as_secs_f64());
+    let t = Instant::now();
+    let scene = demo::voxelize(a.level, 0)?;
+    let model = a.out.join("model.safetensors");
+    checkpoint::save(&scene, &model)?;
+    eprintln!(
+        "voxelized the analytic scene down to level {}: {} voxels, {} grid points → {} ({:.1} s)",
+        a.level,
+        scene.num_voxels(),
+        scene.num_grid_points(),
+        model.display(),
+        t.elapsed().as_secs_f64()
+    );
+    let renders = a.out.join("renders");
+    let (psnr, ms) = render_split(
+        ctx,
+        &RenderArgs {
+            model: model.clone(),
+            data: data_dir.clone(),
+            split: "test".into(),
+            downscale: 1.0,
+            out: renders.clone(),
+            depth: true,
+            normal: true,
+            opts: RenderOptions::default(),
+        },
+    )?;
+    println!(
+        "demo: test views rendered to {} (rgb, depth, normal PNGs); mean PSNR {psnr:.2} dB against the ground truth; {ms:.1} ms per frame",
+        renders.display()
+    );
+    Ok(())
+}
+
+/// The cameras of a split, for benchmarks.
+pub fn split_cameras(
+    data: &Path,
+    split: &str,
+    downscale: f64,
+    background: [f32; 3],
+) -> anyhow::Result<Vec<Camera>> {
+    let ds = data::load_split(data, split, downscale, background)?;
+    Ok(ds.frames.into_iter().map(|f| f.camera).collect())
+}

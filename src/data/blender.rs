@@ -1,0 +1,552 @@
+//! Loader for Blender / NeRF-synthetic datasets.
+//!
+//! A dataset folder holds `transforms_{split}.json` per split and the images they name:
+//!
+//! ```text
+//! { "camera_angle_x": 0.6911,
+//!   "frames": [ { "file_path": "./train/r_0", "transform_matrix": [[...4...] ×4] }, ... ] }
+//! ```
+//!
+//! `file_path` is relative to the folder, with or without extension (without one,
+//! `.png` is appended). `transform_matrix` is the OpenGL camera-to-world matrix, converted
+//! with [`Camera::from_opengl`]. Instant-ngp style intrinsics (`fl_x`, `fl_y`, `cx`, `cy`,
+//! `w`, `h`, in pixels of the stored images) are honoured when `fl_x` is present; then
+//! `camera_angle_x` is not needed.
+//!
+//! RGBA images are composited over the chosen background (`rgb·a + bg·(1−a)`) and may be
+//! downscaled by any factor `F ≥ 1`: the output is `round(W/F) × round(H/F)` and each
+//! output pixel is the exact area average of the input pixels it covers.
+
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
+
+use super::image::{io_error, load_rgba};
+use super::Camera;
+use crate::{Error, Result};
+
+/// One view of a split.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    /// File name stem of the image, e.g. `r_0`.
+    pub name: String,
+    /// The camera, at the (downscaled) image size.
+    pub camera: Camera,
+    /// Row-major RGB, composited over the dataset background.
+    pub rgb: Vec<[f32; 3]>,
+}
+
+/// The frames of one split, all of one image size.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Dataset {
+    pub frames: Vec<Frame>,
+    /// Image width after downscaling.
+    pub width: u32,
+    /// Image height after downscaling.
+    pub height: u32,
+    /// Colour the images were composited over.
+    pub background: [f32; 3],
+    /// Split name (`train`, `val`, `test`, ...).
+    pub split: String,
+}
+
+impl Dataset {
+    /// The cameras of all frames, in order.
+    pub fn cameras(&self) -> Vec<Camera> {
+        self.frames.iter().map(|f| f.camera.clone()).collect()
+    }
+}
+
+/// Number of threads decoding images.
+const THREADS: usize = 2;
+
+/// Intrinsics as stored in the transforms file.
+#[derive(Clone, Copy, Debug)]
+enum Intrinsics {
+    /// NeRF-synthetic: horizontal field of view, square pixels, centred principal point.
+    AngleX(f64),
+    /// Instant-ngp: focal lengths and principal point in pixels; optional image size.
+    Pixels {
+        fl_x: f64,
+        fl_y: f64,
+        cx: Option<f64>,
+        cy: Option<f64>,
+        w: Option<f64>,
+        h: Option<f64>,
+    },
+}
+
+/// A parsed, not yet loaded frame.
+struct FrameSpec {
+    name: String,
+    image: PathBuf,
+    c2w_gl: [[f64; 4]; 4],
+}
+
+/// Loads split `split` of the dataset in `dir`: reads `transforms_{split}.json` and its
+/// images, composites them over `background` and downscales them by `downscale` (≥ 1,
+/// may be fractional). Errors name the offending file and what to do about it.
+pub fn load_split(
+    dir: &Path,
+    split: &str,
+    downscale: f64,
+    background: [f32; 3],
+) -> Result<Dataset> {
+    if !downscale.is_finite() || downscale < 1.0 {
+        return Err(Error::Invalid(format!(
+            "downscale factor must be a finite number ≥ 1, got {downscale}"
+        )));
+    }
+    if background.iter().any(|c| !c.is_finite()) {
+        return Err(Error::Invalid(format!(
+            "background colour must be finite, got {background:?}"
+        )));
+    }
+    if !dir.is_dir() {
+        return Err(io_error(
+            dir,
+            std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                "dataset folder not found; pass the folder that holds transforms_*.json",
+            ),
+        ));
+    }
+    let transforms = dir.join(format!("transforms_{split}.json"));
+    let text = std::fs::read_to_string(&transforms).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            let found = available_splits(dir);
+            let hint = if found.is_empty() {
+                "the folder has no transforms_*.json; is it a Blender/NeRF-synthetic dataset?"
+                    .to_string()
+            } else {
+                format!("splits present: {}", found.join(", "))
+            };
+            io_error(
+                &transforms,
+                std::io::Error::new(e.kind(), format!("transforms file not found ({hint})")),
+            )
+        } else {
+            io_error(&transforms, e)
+        }
+    })?;
+    let (intrinsics, specs) = parse_transforms(&transforms, dir, &text)?;
+
+    // Decode, composite and downscale in parallel; results keep frame order.
+    let results = load_images(&specs, downscale, background);
+    let mut loaded = Vec::with_capacity(specs.len());
+    for r in results {
+        loaded.push(r?);
+    }
+    let (w0, h0) = (loaded[0].0, loaded[0].1);
+    for (i, l) in loaded.iter().enumerate() {
+        if (l.0, l.1) != (w0, h0) {
+            return Err(Error::Invalid(format!(
+                "{}: image {} is {}×{} but {} is {w0}×{h0}; all frames of a split must have \
+                 one size",
+                transforms.display(),
+                specs[i].image.display(),
+                l.0,
+                l.1,
+                specs[0].image.display()
+            )));
+        }
+    }
+    let (width, height) = (loaded[0].2, loaded[0].3);
+
+    let mut frames = Vec::with_capacity(specs.len());
+    for (spec, (_, _, _, _, rgb)) in specs.into_iter().zip(loaded) {
+        let full = full_camera(&transforms, intrinsics, spec.c2w_gl, w0, h0)?;
+        let camera = if (width, height) == (w0, h0) {
+            full
+        } else {
+            full.resized(width, height)
+        };
+        camera.validate().map_err(|e| {
+            Error::Invalid(format!(
+                "{}: frame {}: {e}",
+                transforms.display(),
+                spec.name
+            ))
+        })?;
+        frames.push(Frame {
+            name: spec.name,
+            camera,
+            rgb,
+        });
+    }
+    Ok(Dataset {
+        frames,
+        width,
+        height,
+        background,
+        split: split.to_string(),
+    })
+}
+
+/// Output size of downscaling `w × h` by `factor` (each at least 1).
+pub fn downscaled_size(w: u32, h: u32, factor: f64) -> (u32, u32) {
+    let f = |n: u32| ((n as f64 / factor).round() as u32).max(1);
+    (f(w), f(h))
+}
+
+/// Resamples a row-major `w × h` image to `ow × oh` by exact area averaging: each output
+/// pixel is the mean of the input over its footprint, input pixels weighted by overlap
+/// area. For integer ratios this is a plain box average.
+///
+/// Panics if `rgb.len() != w·h` or an output size is zero.
+pub fn area_resample(w: u32, h: u32, rgb: &[[f32; 3]], ow: u32, oh: u32) -> Vec<[f32; 3]> {
+    let (w, h, ow, oh) = (w as usize, h as usize, ow as usize, oh as usize);
+    assert_eq!(rgb.len(), w * h, "area_resample: image size mismatch");
+    assert!(ow > 0 && oh > 0, "area_resample: empty output size");
+    if (w, h) == (ow, oh) {
+        return rgb.to_vec();
+    }
+    let wx = area_weights(w, ow);
+    let wy = area_weights(h, oh);
+    // Horizontal pass: h × ow.
+    let mut tmp = vec![[0.0f64; 3]; h * ow];
+    for y in 0..h {
+        for (ox, ws) in wx.iter().enumerate() {
+            let mut acc = [0.0f64; 3];
+            for &(x, wt) in ws {
+                let p = rgb[y * w + x];
+                for c in 0..3 {
+                    acc[c] += wt * p[c] as f64;
+                }
+            }
+            tmp[y * ow + ox] = acc;
+        }
+    }
+    // Vertical pass: oh × ow.
+    let mut out = vec![[0.0f32; 3]; oh * ow];
+    for (oy, ws) in wy.iter().enumerate() {
+        for ox in 0..ow {
+            let mut acc = [0.0f64; 3];
+            for &(y, wt) in ws {
+                let p = tmp[y * ow + ox];
+                for c in 0..3 {
+                    acc[c] += wt * p[c];
+                }
+            }
+            out[oy * ow + ox] = acc.map(|v| v as f32);
+        }
+    }
+    out
+}
+
+/// Per output index: the input indices it overlaps and their normalised overlap weights.
+fn area_weights(n_in: usize, n_out: usize) -> Vec<Vec<(usize, f64)>> {
+    let s = n_in as f64 / n_out as f64;
+    (0..n_out)
+        .map(|o| {
+            let a = o as f64 * s;
+            let b = ((o + 1) as f64 * s).min(n_in as f64);
+            let i0 = (a.floor() as usize).min(n_in - 1);
+            let i1 = (b.ceil() as usize).clamp(i0 + 1, n_in);
+            let mut ws: Vec<(usize, f64)> = (i0..i1)
+                .map(|i| (i, (b.min(i as f64 + 1.0) - a.max(i as f64)).max(0.0)))
+                .filter(|&(_, wt)| wt > 0.0)
+                .collect();
+            let total: f64 = ws.iter().map(|&(_, wt)| wt).sum();
+            if total > 0.0 {
+                for (_, wt) in &mut ws {
+                    *wt /= total;
+                }
+            } else {
+                ws = vec![(i0, 1.0)];
+            }
+            ws
+        })
+        .collect()
+}
+
+/// `transforms_*.json` present in `dir`, as split names.
+fn available_splits(dir: &Path) -> Vec<String> {
+    let mut out: Vec<String> = std::fs::read_dir(dir)
+        .map(|rd| {
+            rd.filter_map(|e| e.ok())
+                .filter_map(|e| {
+                    let name = e.file_name().to_string_lossy().into_owned();
+                    name.strip_prefix("transforms_")
+                        .and_then(|s| s.strip_suffix(".json"))
+                        .map(str::to_string)
+                })
+                .collect()
+        })
+        .unwrap_or_default();
+    out.sort();
+    out
+}
+
+/// Parses the transforms file: intrinsics and per-frame image path and pose.
+fn parse_transforms(
+    transforms: &Path,
+    dir: &Path,
+    text: &str,
+) -> Result<(Intrinsics, Vec<FrameSpec>)> {
+    let bad = |msg: String| Error::Invalid(format!("{}: {msg}", transforms.display()));
+    let root: Value = serde_json::from_str(text).map_err(|e| {
+        bad(format!(
+            "malformed JSON ({e}); fix the syntax at that position"
+        ))
+    })?;
+    let root = root
+        .as_object()
+        .ok_or_else(|| bad("the top level must be a JSON object".into()))?;
+
+    let number = |key: &str| -> Result<Option<f64>> {
+        match root.get(key) {
+            None | Some(Value::Null) => Ok(None),
+            Some(v) => match v.as_f64() {
+                Some(x) if x.is_finite() => Ok(Some(x)),
+                _ => Err(bad(format!("key `{key}` must be a finite number, got {v}"))),
+            },
+        }
+    };
+    let intrinsics = if let Some(fl_x) = number("fl_x")? {
+        let fl_y = number("fl_y")?.unwrap_or(fl_x);
+        if fl_x <= 0.0 || fl_y <= 0.0 {
+            return Err(bad(format!(
+                "focal lengths fl_x {fl_x}, fl_y {fl_y} must be > 0"
+            )));
+        }
+        Intrinsics::Pixels {
+            fl_x,
+            fl_y,
+            cx: number("cx")?,
+            cy: number("cy")?,
+            w: number("w")?,
+            h: number("h")?,
+        }
+    } else {
+        let angle = number("camera_angle_x")?.ok_or_else(|| {
+            bad(
+                "missing key `camera_angle_x` (horizontal field of view in radians; \
+                 instant-ngp files may give `fl_x` instead)"
+                    .into(),
+            )
+        })?;
+        if !(angle > 0.0 && angle < std::f64::consts::PI) {
+            return Err(bad(format!(
+                "camera_angle_x {angle} is outside (0, π); it is the horizontal field of \
+                 view in radians"
+            )));
+        }
+        Intrinsics::AngleX(angle)
+    };
+
+    let frames = match root.get("frames") {
+        None => return Err(bad("missing key `frames` (the list of views)".into())),
+        Some(Value::Array(a)) => a,
+        Some(v) => {
+            return Err(bad(format!(
+                "key `frames` must be an array, got {}",
+                type_name(v)
+            )))
+        }
+    };
+    if frames.is_empty() {
+        return Err(bad(
+            "the `frames` list is empty; the split needs at least one view".into(),
+        ));
+    }
+    let mut specs = Vec::with_capacity(frames.len());
+    for (i, f) in frames.iter().enumerate() {
+        let f = f
+            .as_object()
+            .ok_or_else(|| bad(format!("frames[{i}] must be an object")))?;
+        let file_path = match f.get("file_path") {
+            Some(Value::String(s)) if !s.is_empty() => s.as_str(),
+            Some(v) => {
+                return Err(bad(format!(
+                    "frames[{i}].file_path must be a non-empty string, got {v}"
+                )))
+            }
+            None => return Err(bad(format!("frames[{i}] is missing key `file_path`"))),
+        };
+        let m = f
+            .get("transform_matrix")
+            .ok_or_else(|| bad(format!("frames[{i}] is missing key `transform_matrix`")))?;
+        let c2w_gl = parse_matrix(m).map_err(|why| {
+            bad(format!(
+                "frames[{i}].transform_matrix must be a 4×4 array of finite numbers \
+                 (camera-to-world): {why}"
+            ))
+        })?;
+        let image = resolve_image(dir, file_path);
+        let name = Path::new(file_path)
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_else(|| format!("frame_{i}"));
+        specs.push(FrameSpec {
+            name,
+            image,
+            c2w_gl,
+        });
+    }
+    Ok((intrinsics, specs))
+}
+
+/// A 4×4 matrix of finite numbers from JSON; the error says what is wrong.
+pub(crate) fn parse_matrix(m: &Value) -> std::result::Result<[[f64; 4]; 4], String> {
+    let rows = m
+        .as_array()
+        .ok_or_else(|| format!("got {}", type_name(m)))?;
+    if rows.len() != 4 {
+        return Err(format!("it has {} rows", rows.len()));
+    }
+    let mut out = [[0.0; 4]; 4];
+    for (r, row) in rows.iter().enumerate() {
+        let row = row
+            .as_array()
+            .ok_or_else(|| format!("row {r} is {}", type_name(row)))?;
+        if row.len() != 4 {
+            return Err(format!("row {r} has {} entries", row.len()));
+        }
+        for (c, v) in row.iter().enumerate() {
+            out[r][c] = match v.as_f64() {
+                Some(x) if x.is_finite() => x,
+                _ => return Err(format!("entry [{r}][{c}] is {v}")),
+            };
+        }
+    }
+    Ok(out)
+}
+
+fn type_name(v: &Value) -> &'static str {
+    match v {
+        Value::Null => "null",
+        Value::Bool(_) => "a boolean",
+        Value::Number(_) => "a number",
+        Value::String(_) => "a string",
+        Value::Array(_) => "an array",
+        Value::Object(_) => "an object",
+    }
+}
+
+/// The image file of `file_path`: as given if that file exists, else with `.png`
+/// appended (NeRF-synthetic paths carry no extension).
+fn resolve_image(dir: &Path, file_path: &str) -> PathBuf {
+    let given = dir.join(file_path);
+    if given.is_file() {
+        return given;
+    }
+    let mut with_ext = given.clone().into_os_string();
+    with_ext.push(".png");
+    let with_ext = PathBuf::from(with_ext);
+    if with_ext.is_file() || Path::new(file_path).extension().is_none() {
+        with_ext
+    } else {
+        given
+    }
+}
+
+/// Decoded image: full size, output size, composited and downscaled RGB.
+type Loaded = (u32, u32, u32, u32, Vec<[f32; 3]>);
+
+/// Loads every frame's image on [`THREADS`] threads; results in frame order.
+fn load_images(specs: &[FrameSpec], downscale: f64, bg: [f32; 3]) -> Vec<Result<Loaded>> {
+    let threads = THREADS.min(specs.len()).max(1);
+    let mut slots: Vec<Option<Result<Loaded>>> = (0..specs.len()).map(|_| None).collect();
+    std::thread::scope(|s| {
+        let handles: Vec<_> = (0..threads)
+            .map(|t| {
+                s.spawn(move || {
+                    (t..specs.len())
+                        .step_by(threads)
+                        .map(|i| (i, load_one(&specs[i], downscale, bg)))
+                        .collect::<Vec<_>>()
+                })
+            })
+            .collect();
+        for h in handles {
+            // A panicked worker leaves its slots empty; reported below.
+            if let Ok(done) = h.join() {
+                for (i, r) in done {
+                    slots[i] = Some(r);
+                }
+            }
+        }
+    });
+    slots
+        .into_iter()
+        .enumerate()
+        .map(|(i, s)| {
+            s.unwrap_or_else(|| {
+                Err(Error::Invalid(format!(
+                    "{}: the image loader thread panicked",
+                    specs[i].image.display()
+                )))
+            })
+        })
+        .collect()
+}
+
+fn load_one(spec: &FrameSpec, downscale: f64, bg: [f32; 3]) -> Result<Loaded> {
+    if !spec.image.is_file() {
+        return Err(io_error(
+            &spec.image,
+            std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                format!(
+                    "image of frame `{}` not found; check its file_path in the transforms file",
+                    spec.name
+                ),
+            ),
+        ));
+    }
+    let (w, h, rgba) = load_rgba(&spec.image)?;
+    if downscale > w as f64 || downscale > h as f64 {
+        return Err(Error::Invalid(format!(
+            "{}: downscale factor {downscale} is larger than the {w}×{h} image; use a \
+             smaller factor",
+            spec.image.display()
+        )));
+    }
+    let rgb: Vec<[f32; 3]> = rgba
+        .iter()
+        .map(|p| std::array::from_fn(|c| p[c] * p[3] + bg[c] * (1.0 - p[3])))
+        .collect();
+    let (ow, oh) = downscaled_size(w, h, downscale);
+    let rgb = area_resample(w, h, &rgb, ow, oh);
+    Ok((w, h, ow, oh, rgb))
+}
+
+/// The camera of a frame at the full stored image size.
+fn full_camera(
+    transforms: &Path,
+    intr: Intrinsics,
+    c2w_gl: [[f64; 4]; 4],
+    w: u32,
+    h: u32,
+) -> Result<Camera> {
+    match intr {
+        Intrinsics::AngleX(angle) => Ok(Camera::from_opengl(c2w_gl, angle, w, h)),
+        Intrinsics::Pixels {
+            fl_x,
+            fl_y,
+            cx,
+            cy,
+            w: jw,
+            h: jh,
+        } => {
+            for (key, stated, actual) in [("w", jw, w), ("h", jh, h)] {
+                if let Some(s) = stated {
+                    if (s - actual as f64).abs() > 0.5 {
+                        return Err(Error::Invalid(format!(
+                            "{}: key `{key}` says {s} pixels but the images have {actual}; \
+                             fix `w`/`h` or the images",
+                            transforms.display()
+                        )));
+                    }
+                }
+            }
+            let mut cam = Camera::from_opengl(c2w_gl, 1.0, w, h);
+            cam.fx = fl_x;
+            cam.fy = fl_y;
+            cam.cx = cx.unwrap_or(0.5 * w as f64);
+            cam.cy = cy.unwrap_or(0.5 * h as f64);
+            Ok(cam)
+        }
+    }
+}

@@ -1,0 +1,149 @@
+//! PNG input and output.
+//!
+//! Images are row-major arrays of `f32` pixels in `[0, 1]`, top row first. Writers clamp
+//! to `[0, 1]`, round to 8 bits (NaN writes as 0) and write atomically: the PNG is
+//! encoded in memory, written to a temporary file in the destination folder and renamed
+//! over the destination, so a failed write never leaves a half-written file behind.
+//! [`load_rgba`] reads 8- and 16-bit gray, gray+alpha, RGB and RGBA PNGs.
+
+use std::io::Write;
+use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+use image::codecs::png::PngEncoder;
+use image::{ExtendedColorType, ImageEncoder, ImageFormat};
+
+use crate::{Error, Result};
+
+/// Writes an 8-bit RGB PNG from `width × height` row-major pixels.
+pub fn save_rgb_png(path: &Path, width: u32, height: u32, rgb: &[[f32; 3]]) -> Result<()> {
+    check_len(path, width, height, rgb.len())?;
+    let bytes: Vec<u8> = rgb.iter().flatten().map(|&v| to_u8(v)).collect();
+    save_png(path, width, height, &bytes, ExtendedColorType::Rgb8)
+}
+
+/// Writes an 8-bit RGBA PNG (straight, not premultiplied, alpha) from `width × height`
+/// row-major pixels.
+pub fn save_rgba_png(path: &Path, width: u32, height: u32, rgba: &[[f32; 4]]) -> Result<()> {
+    check_len(path, width, height, rgba.len())?;
+    let bytes: Vec<u8> = rgba.iter().flatten().map(|&v| to_u8(v)).collect();
+    save_png(path, width, height, &bytes, ExtendedColorType::Rgba8)
+}
+
+/// Writes an 8-bit grayscale PNG from `width × height` row-major values.
+pub fn save_gray_png(path: &Path, width: u32, height: u32, gray: &[f32]) -> Result<()> {
+    check_len(path, width, height, gray.len())?;
+    let bytes: Vec<u8> = gray.iter().map(|&v| to_u8(v)).collect();
+    save_png(path, width, height, &bytes, ExtendedColorType::L8)
+}
+
+/// Reads a PNG as `(width, height, rgba)`: row-major, values in `[0, 1]`. Gray images
+/// are replicated to RGB; alpha is 1 where the file has none. The error names the file
+/// when it is missing or cannot be decoded.
+pub fn load_rgba(path: &Path) -> Result<(u32, u32, Vec<[f32; 4]>)> {
+    let bytes = std::fs::read(path).map_err(|e| io_error(path, e))?;
+    let img = image::load_from_memory_with_format(&bytes, ImageFormat::Png).map_err(|e| {
+        Error::Invalid(format!(
+            "{}: cannot decode the image as PNG ({e}); the file is corrupt or not a PNG, \
+             re-export it as an 8- or 16-bit PNG",
+            path.display()
+        ))
+    })?;
+    use image::DynamicImage as D;
+    let (w, h) = (img.width(), img.height());
+    if w == 0 || h == 0 {
+        return Err(Error::Invalid(format!(
+            "{}: image is empty ({w}×{h})",
+            path.display()
+        )));
+    }
+    // Exact `v / max` per channel (gray replicates to RGB, missing alpha is opaque).
+    let pixels: Vec<[f32; 4]> = match img {
+        D::ImageLuma8(_) | D::ImageLumaA8(_) | D::ImageRgb8(_) | D::ImageRgba8(_) => img
+            .into_rgba8()
+            .pixels()
+            .map(|p| p.0.map(|v| v as f32 / 255.0))
+            .collect(),
+        D::ImageLuma16(_) | D::ImageLumaA16(_) | D::ImageRgb16(_) | D::ImageRgba16(_) => img
+            .into_rgba16()
+            .pixels()
+            .map(|p| p.0.map(|v| v as f32 / 65535.0))
+            .collect(),
+        other => {
+            return Err(Error::Invalid(format!(
+                "{}: unsupported PNG pixel format {:?}; use 8- or 16-bit gray/RGB/RGBA",
+                path.display(),
+                other.color()
+            )))
+        }
+    };
+    Ok((w, h, pixels))
+}
+
+/// Writes `bytes` to `path` atomically (temporary file in the same folder + rename).
+/// On error the temporary file is removed and `path` is untouched.
+pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
+    let name = path.file_name().ok_or_else(|| {
+        Error::Invalid(format!("output path {} has no file name", path.display()))
+    })?;
+    let dir = match path.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    let tmp = dir.join(format!(
+        ".{}.tmp-{}-{}",
+        name.to_string_lossy(),
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed)
+    ));
+    let result = (|| {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()?;
+        drop(f);
+        std::fs::rename(&tmp, path)
+    })();
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io_error(path, e));
+    }
+    Ok(())
+}
+
+pub(crate) fn io_error(path: &Path, source: std::io::Error) -> Error {
+    Error::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+fn to_u8(v: f32) -> u8 {
+    // `as` saturates and maps NaN to 0.
+    (v.clamp(0.0, 1.0) * 255.0).round() as u8
+}
+
+fn check_len(path: &Path, width: u32, height: u32, len: usize) -> Result<()> {
+    let expected = width as u64 * height as u64;
+    if width == 0 || height == 0 || expected != len as u64 {
+        return Err(Error::Invalid(format!(
+            "{}: cannot write a {width}×{height} image from {len} pixels",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
+fn save_png(
+    path: &Path,
+    width: u32,
+    height: u32,
+    bytes: &[u8],
+    color: ExtendedColorType,
+) -> Result<()> {
+    let mut buf = Vec::new();
+    PngEncoder::new(&mut buf)
+        .write_image(bytes, width, height, color)
+        .map_err(|e| Error::Invalid(format!("{}: cannot encode PNG: {e}", path.display())))?;
+    write_atomic(path, &buf)
+}
