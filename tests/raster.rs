@@ -69,6 +69,19 @@ fn compare(img: &Image, refs: &[RefPixel], what: &str) -> Errors {
     e
 }
 
+/// Pixel `i` of an image as a 1×1 image.
+fn pixel(img: &Image, i: usize) -> Image {
+    Image {
+        width: 1,
+        height: 1,
+        rgb: vec![img.rgb[i]],
+        alpha: vec![img.alpha[i]],
+        depth: vec![img.depth[i]],
+        depth_median: vec![img.depth_median[i]],
+        normal: vec![img.normal[i]],
+    }
+}
+
 fn assert_within(e: &Errors, what: &str) {
     println!("{what}: {e:?}");
     assert!(e.rgb <= RGB_TOL, "{what}: rgb error {} > {RGB_TOL}", e.rgb);
@@ -411,16 +424,7 @@ fn image_sizes_from_1x1_to_4096x4096() {
             };
             let rp = reference::render_pixel(&scene, &cam, px as f64 + 0.5, py as f64 + 0.5, 1);
             let i = (py * w + px) as usize;
-            let one = Image {
-                width: 1,
-                height: 1,
-                rgb: vec![img.rgb[i]],
-                alpha: vec![img.alpha[i]],
-                depth: vec![img.depth[i]],
-                depth_median: vec![img.depth_median[i]],
-                normal: vec![img.normal[i]],
-            };
-            e = e.max(compare(&one, &[rp], "size"));
+            e = e.max(compare(&pixel(&img, i), &[rp], "size"));
         }
         assert_within(
             &e,
@@ -584,16 +588,7 @@ fn chunking_and_capacity_growth_give_identical_frames() {
         let (px, py) = (rng.below(800) as u32, rng.below(600) as u32);
         let rp = reference::render_pixel(&scene, &cam, px as f64 + 0.5, py as f64 + 0.5, 1);
         let i = (py * 800 + px) as usize;
-        let one = Image {
-            width: 1,
-            height: 1,
-            rgb: vec![got.rgb[i]],
-            alpha: vec![got.alpha[i]],
-            depth: vec![got.depth[i]],
-            depth_median: vec![got.depth_median[i]],
-            normal: vec![got.normal[i]],
-        };
-        e = e.max(compare(&one, &[rp], "grown"));
+        e = e.max(compare(&pixel(&got, i), &[rp], "grown"));
     }
     assert_within(&e, "grown renderer");
     finish(&ctx);

@@ -34,7 +34,6 @@ impl Camera {
         width: u32,
         height: u32,
     ) -> Camera {
-        let fx = 0.5 * width as f64 / (0.5 * camera_angle_x).tan();
         let mut c2w = [[0.0; 4]; 3];
         for (r, row) in c2w.iter_mut().enumerate() {
             row[0] = c2w_gl[r][0];
@@ -42,6 +41,12 @@ impl Camera {
             row[2] = -c2w_gl[r][2];
             row[3] = c2w_gl[r][3];
         }
+        Camera::centred(c2w, camera_angle_x, width, height)
+    }
+
+    /// Square pixels, principal point at the image centre, horizontal field of view.
+    fn centred(c2w: [[f64; 4]; 3], fov_x: f64, width: u32, height: u32) -> Camera {
+        let fx = 0.5 * width as f64 / (0.5 * fov_x).tan();
         Camera {
             width,
             height,
@@ -66,21 +71,8 @@ impl Camera {
         let z = normalize(sub(target, eye));
         let x = normalize(cross(z, up));
         let y = cross(z, x);
-        let fx = 0.5 * width as f64 / (0.5 * fov_x).tan();
-        let mut c2w = [[0.0; 4]; 3];
-        for r in 0..3 {
-            c2w[r] = [x[r], y[r], z[r], eye[r]];
-        }
-        Camera {
-            width,
-            height,
-            fx,
-            fy: fx,
-            cx: 0.5 * width as f64,
-            cy: 0.5 * height as f64,
-            c2w,
-            near: DEFAULT_NEAR,
-        }
+        let c2w = std::array::from_fn(|r| [x[r], y[r], z[r], eye[r]]);
+        Camera::centred(c2w, fov_x, width, height)
     }
 
     /// The same view at another image size (intrinsics scaled per axis).

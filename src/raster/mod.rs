@@ -792,11 +792,14 @@ impl Renderer {
         })
     }
 
+    fn last_plan(&self) -> Result<Plan> {
+        self.last
+            .ok_or_else(|| Error::Invalid("no frame was recorded".into()))
+    }
+
     /// Reads the counters of the last recorded frame (it must have completed).
     pub fn stats(&self) -> Result<FrameStats> {
-        let plan = self
-            .last
-            .ok_or_else(|| Error::Invalid("no frame was recorded".into()))?;
+        let plan = self.last_plan()?;
         let s: Vec<u32> = self.ctx.download(&self.stats, 0, STATS_WORDS)?;
         let flags = s[STAT_FLAGS];
         Ok(FrameStats {
@@ -881,9 +884,7 @@ impl Renderer {
 
     /// Reads the image of the last completed frame.
     pub fn read_image(&self) -> Result<Image> {
-        let plan = self
-            .last
-            .ok_or_else(|| Error::Invalid("no frame was recorded".into()))?;
+        let plan = self.last_plan()?;
         let (buf, w, h) = if plan.supersampled {
             (self.out_img.get(), plan.out_w, plan.out_h)
         } else {
@@ -908,9 +909,7 @@ impl Renderer {
     /// The sorted entry values (`sign << 29 | voxel`) of every tile of the last completed
     /// frame, in compositing order (for tests and debugging; reads back everything).
     pub fn tile_lists(&self) -> Result<Vec<Vec<u32>>> {
-        let plan = self
-            .last
-            .ok_or_else(|| Error::Invalid("no frame was recorded".into()))?;
+        let plan = self.last_plan()?;
         let stats = self.stats()?;
         let ranges: Vec<u32> = self
             .ctx
