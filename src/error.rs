@@ -39,12 +39,10 @@ pub enum Error {
     Gpu(String),
     #[error("{0} validation message(s) were reported (see stderr)")]
     Validation(u64),
-    #[error("I/O error on {path}: {source}")]
-    Io {
-        path: String,
-        #[source]
-        source: std::io::Error,
-    },
+    /// (The I/O error is part of the message, not a `source`, so `{:#}` chains do not
+    /// print it twice.)
+    #[error("I/O error on {path}: {error}")]
+    Io { path: String, error: std::io::Error },
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

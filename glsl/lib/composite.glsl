@@ -50,7 +50,14 @@ void main() {
     vec3 C = vec3(0.0), N = vec3(0.0);
     float T = 1.0, D = 0.0, med_t = 0.0;
     uint med_id = 0xffffffffu;
+    // Distortion (mip-NeRF 360) sums over contributors in order: Σ w·m and the loss value
+    // Σ 2 w_k (m_k W_k - M_k) + w_k² δ_k / 3 with W_k = 1 - T_k, M_k = Σ_{j<k} w_j m_j.
+    float dist_m = 0.0, dist_l = 0.0;
+    uint last = 0u;
     if (pc.chunk > 0u && inside) {
+        dist_m = P.aux.v[AUX_M * npix + p];
+        dist_l = P.aux.v[AUX_DIST * npix + p];
+        last = P.last.v[p];
         C = vec3(P.img.v[CH_R * npix + p], P.img.v[CH_G * npix + p], P.img.v[CH_B * npix + p]);
         T = P.img.v[CH_T * npix + p];
         D = P.img.v[CH_DEPTH * npix + p];
@@ -124,6 +131,10 @@ void main() {
             if (alpha < MIN_ALPHA) continue;
 
             float w = T * alpha;
+            float mid = 0.5 * (a + b);
+            dist_l += w * (2.0 * (mid * (1.0 - T) - dist_m) + w * (b - a) * (1.0 / 3.0));
+            dist_m += w * mid;
+            last = start + base + j + 1u;
             C += w * vec3(s_rgb[3u * j], s_rgb[3u * j + 1u], s_rgb[3u * j + 2u]);
             N += w * vec3(s_nrm[3u * j], s_nrm[3u * j + 1u], s_nrm[3u * j + 2u]);
             // Voxel depth (supp. A.4, Eqs. 19-21); K = 1 uses the segment midpoint.
@@ -159,5 +170,8 @@ void main() {
         P.img.v[CH_NZ * npix + p] = N.z;
         P.med_id.v[p] = med_id;
         P.med_t.v[p] = med_t;
+        P.aux.v[AUX_M * npix + p] = dist_m;
+        P.aux.v[AUX_DIST * npix + p] = dist_l;
+        P.last.v[p] = last;
     }
 }

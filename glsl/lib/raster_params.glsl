@@ -19,7 +19,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     uvec4 dims;       // width, height, tiles_x, tiles_y (render resolution)
     uvec4 cfg;        // voxels, sh_degree, max_level, entry capacity
     uvec4 cfg2;       // chunks recorded, chunk size, key shift (3 * max_level), out width
-    uvec4 cfg3;       // out height, supersampled (0/1), pad, pad
+    uvec4 cfg3;       // out height, supersampled (0/1), SH coefficients stored per voxel (shs), pad
     vec4 ss;          // render/out scale x, y, filter radius x, y (downsample)
     ivec4 cam_int;    // camera position in finest-grid units: integer part (xyz)
     // scene
@@ -31,6 +31,9 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     // per tile / pixel
     U32s ranges; F32s img; U32s med_id; F32s med_t; F32s out_img;
     U32s stats;
+    // per pixel, for training: 1 + index of the last contributing sorted entry (0: none),
+    // and AUX_CHANNELS planar floats (distortion sums, exact final transmittance)
+    U32s last; F32s aux;
 };
 
 // Words of the stats buffer.
@@ -48,6 +51,10 @@ const uint FLAG_NEED_CHUNKS = 2u;     // a tile list is longer than the chunks r
 // Channels of the planar image buffers.
 const uint CH_R = 0u, CH_G = 1u, CH_B = 2u, CH_T = 3u, CH_DEPTH = 4u, CH_DMED = 5u,
            CH_NX = 6u, CH_NY = 7u, CH_NZ = 8u, IMG_CHANNELS = 9u;
+// Channels of the per-pixel training aux buffer (render resolution): Σ w·m (weighted
+// segment midpoints), the distortion loss value, and the final transmittance (kept
+// exact: finalize turns CH_T into alpha = 1 - T, which loses a small T).
+const uint AUX_M = 0u, AUX_DIST = 1u, AUX_T = 2u, AUX_CHANNELS = 3u;
 
 // Direction of pixel (px, py) (pixel centres at +0.5): unit world direction with
 // near-zero components flushed to exactly zero, and |camera-space direction| (whose

@@ -24,6 +24,7 @@ void main() {
     pixel_ray(P, pix, rd, rd_norm);
 
     float T = P.img.v[CH_T * npix + p];
+    P.aux.v[AUX_T * npix + p] = T;
     for (uint c = 0u; c < 3u; ++c) P.img.v[c * npix + p] += T * P.bg[c];
     P.img.v[CH_T * npix + p] = 1.0 - T;
     P.img.v[CH_DEPTH * npix + p] /= rd_norm;

@@ -121,9 +121,10 @@ void main() {
     float y[16];
     sh_basis(normalize(centre), degree, y);
     vec3 rgb = y[0] * vec3(P.sh0.v[3u * v], P.sh0.v[3u * v + 1u], P.sh0.v[3u * v + 2u]);
-    uint nc = (degree + 1u) * (degree + 1u) - 1u;
+    uint nc = (degree + 1u) * (degree + 1u) - 1u;  // active (degree may be raised during training)
+    uint stride = P.cfg3.z;                        // stored per voxel
     for (uint k = 1u; k <= nc; ++k) {
-        uint base = (v * nc + (k - 1u)) * 3u;
+        uint base = (v * stride + (k - 1u)) * 3u;
         rgb += y[k] * vec3(P.shs.v[base], P.shs.v[base + 1u], P.shs.v[base + 2u]);
     }
     rgb = max(rgb + 0.5, vec3(0.0));

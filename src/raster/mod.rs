@@ -119,16 +119,20 @@ impl FrameStats {
 
 /// A scene's parameters on the device.
 pub struct SceneGpu {
-    octpath: Buffer,
-    level: Buffer,
-    corners: Buffer,
-    geo: Buffer,
-    sh0: Buffer,
-    shs: Buffer,
+    pub(crate) octpath: Buffer,
+    pub(crate) level: Buffer,
+    pub(crate) corners: Buffer,
+    pub(crate) geo: Buffer,
+    pub(crate) sh0: Buffer,
+    pub(crate) shs: Buffer,
     pub voxels: u32,
     pub grid_points: u32,
     pub max_level: u32,
+    /// Active SH degree (≤ the stored degree; training raises it progressively).
     pub sh_degree: u32,
+    /// SH coefficients stored per voxel besides the DC term, `(D+1)² − 1` of the stored
+    /// degree D.
+    pub shs_per_voxel: u32,
     pub center: [f32; 3],
     pub extent: f32,
     pub background: [f32; 3],
@@ -152,10 +156,31 @@ impl SceneGpu {
             grid_points: scene.num_grid_points() as u32,
             max_level: scene.max_level(),
             sh_degree: scene.sh_degree,
+            shs_per_voxel: scene.shs_per_voxel() as u32,
             center: scene.center,
             extent: scene.extent,
             background: scene.background,
         })
+    }
+
+    /// Downloads the current parameters (density, SH) into `scene`, whose topology
+    /// must be the one this was uploaded from.
+    pub fn download_params(&self, ctx: &Context, scene: &mut Scene) -> Result<()> {
+        if scene.num_voxels() != self.voxels as usize
+            || scene.num_grid_points() != self.grid_points as usize
+            || scene.shs_per_voxel() != self.shs_per_voxel as usize
+        {
+            return Err(Error::Invalid(
+                "download_params: the scene's topology differs from the device copy".into(),
+            ));
+        }
+        scene.geo = ctx.download(&self.geo, 0, scene.geo.len())?;
+        let sh0: Vec<f32> = ctx.download(&self.sh0, 0, scene.sh0.len() * 3)?;
+        scene.sh0 = sh0.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+        if !scene.shs.is_empty() {
+            scene.shs = ctx.download(&self.shs, 0, scene.shs.len())?;
+        }
+        Ok(())
     }
 
     /// Device bytes held by the scene.
@@ -213,8 +238,12 @@ struct FrameParams {
     med_t: u64,
     out_img: u64,
     stats: u64,
+    last: u64,
+    aux: u64,
 }
-const _: () = assert!(std::mem::size_of::<FrameParams>() == 240 + 24 * 8);
+const _: () = assert!(std::mem::size_of::<FrameParams>() == 240 + 26 * 8);
+/// Planar channels of the per-pixel training aux buffer (`AUX_*` in raster_params.glsl).
+pub(crate) const AUX_CHANNELS: u64 = 3;
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -304,6 +333,20 @@ impl Plan {
     }
 }
 
+/// Geometry of a recorded frame (see [`Renderer::last_frame`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameGeometry {
+    pub out_width: u32,
+    pub out_height: u32,
+    pub render_width: u32,
+    pub render_height: u32,
+    pub tiles_x: u32,
+    pub tiles_y: u32,
+    pub supersampled: bool,
+    /// Device address of the frame's parameter block (`FrameParams` in GLSL).
+    pub params: u64,
+}
+
 /// The forward rasterizer with its kernels and growable frame buffers.
 pub struct Renderer {
     ctx: Context,
@@ -340,6 +383,8 @@ pub struct Renderer {
     med_id: Grow,
     med_t: Grow,
     out_img: Grow,
+    last_id: Grow,
+    aux: Grow,
     stats: Buffer,
     params: Buffer,
     last: Option<Plan>,
@@ -386,6 +431,8 @@ impl Renderer {
             med_id: Grow::new("raster.median-id"),
             med_t: Grow::new("raster.median-t"),
             out_img: Grow::new("raster.out-image"),
+            last_id: Grow::new("raster.last-contributor"),
+            aux: Grow::new("raster.aux"),
             stats: ctx.buffer("raster.stats", STATS_WORDS as u64 * 4, Memory::Device)?,
             params: ctx.buffer(
                 "raster.params",
@@ -502,6 +549,12 @@ impl Renderer {
                 scene.max_level
             )));
         }
+        if (scene.sh_degree + 1).pow(2) - 1 > scene.shs_per_voxel {
+            return Err(Error::Invalid(format!(
+                "active SH degree {} exceeds the {} coefficients stored per voxel",
+                scene.sh_degree, scene.shs_per_voxel
+            )));
+        }
         if scene.voxels as usize > crate::scene::MAX_VOXELS {
             return Err(Error::Invalid(format!(
                 "{} voxels exceed the 29-bit voxel id limit",
@@ -538,6 +591,8 @@ impl Renderer {
         self.img.ensure(&ctx, rpix * CHANNELS as u64 * 4)?;
         self.med_id.ensure(&ctx, rpix * 4)?;
         self.med_t.ensure(&ctx, rpix * 4)?;
+        self.last_id.ensure(&ctx, rpix * 4)?;
+        self.aux.ensure(&ctx, rpix * AUX_CHANNELS * 4)?;
         let opix = plan.out_w as u64 * plan.out_h as u64;
         self.out_img.ensure(
             &ctx,
@@ -638,7 +693,7 @@ impl Renderer {
                 3 * scene.max_level,
                 plan.out_w,
             ],
-            cfg3: [plan.out_h, plan.supersampled as u32, 0, 0],
+            cfg3: [plan.out_h, plan.supersampled as u32, scene.shs_per_voxel, 0],
             ss: [sx, sy, sx.max(1.0), sy.max(1.0)],
             cam_int: [cam_fine[0].0, cam_fine[1].0, cam_fine[2].0, 0],
             octpath: scene.octpath.address(),
@@ -665,6 +720,8 @@ impl Renderer {
             med_t: self.med_t.address(),
             out_img: self.out_img.address(),
             stats: self.stats.address(),
+            last: self.last_id.address(),
+            aux: self.aux.address(),
         };
         let dev = ctx.device();
         let pa = ParamsPush {
@@ -789,6 +846,33 @@ impl Renderer {
             chunks: plan.chunks,
             sort_bits: plan.sort_bits,
             ..Default::default()
+        })
+    }
+
+    /// Geometry and parameter block of the last recorded frame, for passes recorded
+    /// after it that read its per-pixel state (the training backward).
+    pub fn last_frame(&self) -> Result<FrameGeometry> {
+        let p = self.last_plan()?;
+        Ok(FrameGeometry {
+            out_width: p.out_w,
+            out_height: p.out_h,
+            render_width: p.render_w,
+            render_height: p.render_h,
+            tiles_x: p.render_w.div_ceil(TILE),
+            tiles_y: p.render_h.div_ceil(TILE),
+            supersampled: p.supersampled,
+            params: self.params.address(),
+        })
+    }
+
+    /// The device image of the last frame at output resolution (planar, [`CHANNELS`]
+    /// channels): the supersampled frame's downsampled copy, else the render itself.
+    pub fn output_address(&self) -> Result<u64> {
+        let p = self.last_plan()?;
+        Ok(if p.supersampled {
+            self.out_img.address()
+        } else {
+            self.img.address()
         })
     }
 
@@ -947,6 +1031,8 @@ impl Renderer {
             &self.med_id,
             &self.med_t,
             &self.out_img,
+            &self.last_id,
+            &self.aux,
         ]
         .iter()
         .map(|g| g.bytes())

@@ -96,7 +96,7 @@ pub fn save(scene: &Scene, path: &Path) -> Result<()> {
     let header = encode_header(scene)?;
     let io_err = |kind: io::ErrorKind, msg: String| Error::Io {
         path: path.display().to_string(),
-        source: io::Error::new(kind, msg),
+        error: io::Error::new(kind, msg),
     };
     let file_name = path.file_name().ok_or_else(|| {
         Error::Invalid(format!(
@@ -160,9 +160,9 @@ pub fn save(scene: &Scene, path: &Path) -> Result<()> {
 /// Reads and fully validates a checkpoint written by [`save`] (or any tool following the
 /// format in the module documentation).
 pub fn load(path: &Path) -> Result<Scene> {
-    let bytes = fs::read(path).map_err(|source| Error::Io {
+    let bytes = fs::read(path).map_err(|error| Error::Io {
         path: path.display().to_string(),
-        source,
+        error,
     })?;
     parse(&bytes, &path.display().to_string())
 }
@@ -172,9 +172,9 @@ pub fn to_bytes(scene: &Scene) -> Result<Vec<u8>> {
     let header = encode_header(scene)?;
     let mut out = Vec::with_capacity(header.len() + data_len(scene));
     out.extend_from_slice(&header);
-    write_data(scene, &mut out).map_err(|source| Error::Io {
+    write_data(scene, &mut out).map_err(|error| Error::Io {
         path: "<memory>".into(),
-        source,
+        error,
     })?;
     Ok(out)
 }
