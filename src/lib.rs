@@ -12,5 +12,6 @@ pub mod raster;
 pub mod scan;
 pub mod scene;
 pub mod sort;
+pub mod train;
 
 pub use error::{Error, Result};

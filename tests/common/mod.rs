@@ -68,6 +68,7 @@ pub fn reference_scan(data: &[u32]) -> (Vec<u32>, u32) {
 }
 
 pub mod reference;
+pub mod reference_grad;
 
 use svraster::data::Camera;
 use svraster::scene::{octpath_from_ijk, Scene, MAX_LEVEL};

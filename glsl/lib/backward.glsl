@@ -1,0 +1,246 @@
+// Backward of the compositing (paper §3.2; DESIGN §4), shared by backward_k{1,2,3}
+// [_cas].comp, which define N_SAMP (samples per voxel segment) and FLOAT_ATOMICS.
+//
+// One workgroup per 16x16 tile walks the tile's sorted list BACK TO FRONT, starting at
+// each pixel's last contributor with the exact final transmittance the forward kept.
+// With G the loss's linear functional of the composited outputs,
+//     G = Σ_k T_k φ_k + T_final g_T,   φ_k = α_k (dC·c_k + dN·n_k + r_k + u_k) + dD·dval_k,
+// the per-unit-transmittance suffix A_k = φ_k + (1 - α_k) A_{k+1} (A_{N+1} = g_T) gives
+//     ∂L/∂α_k = T_k (∂φ_k/∂α_k - A_{k+1})
+// without dividing a suffix sum by (1 - α_k); T_k = T_{k+1} / (1 - α_k) is exact enough
+// because α ≤ 0.99999 and the forward stopped at T < 1e-4. r_k is the per-point RGB loss
+// λ_R·|c_k - gt|²/3; u_k = ∂L_dist/∂w_k uses W_k = 1 - T_k and the forward's Σ w·m.
+//
+// Per entry, the lanes of a subgroup reduce their voxel gradients with subgroupAdd and
+// one lane adds them to the voxel's 16-float record with global float atomics (a CAS
+// loop where the device lacks them). Chunks of the list are separate dispatches (last
+// chunk first), carrying per-pixel state (T, A, Σ_after w, Σ_after w·m) in `bstate`,
+// which keeps each invocation under llvmpipe's loop limit.
+#include "atomic_f32.glsl"
+#include "raster_params.glsl"
+#include "explin.glsl"
+#include "morton.glsl"
+#include "ray_aabb.glsl"
+#include "trilinear.glsl"
+#include "backward_params.glsl"
+layout(local_size_x = 256) in;
+
+layout(push_constant) uniform Push {
+    FrameParams P;
+    BackParams B;
+    uint chunk;  // chunk index (dispatched from the last down to 0)
+    uint pad;
+} pc;
+
+shared uint s_val[256];
+shared uvec2 s_box[256];
+shared vec4 s_cs[256];
+shared float s_geo[256 * 8];
+shared float s_rgb[256 * 3];
+shared float s_nrm[256 * 3];
+shared uint s_last;
+
+float explin_grad(float x) {
+    return x > 1.1 ? 1.0 : explin(x) * 0.909090909091;
+}
+
+void main() {
+    FrameParams P = pc.P;
+    BackParams B = pc.B;
+    uint l = gl_LocalInvocationID.x;
+    uint tiles_x = P.dims.z;
+    uint tile = gl_WorkGroupID.y * tiles_x + gl_WorkGroupID.x;
+    uvec2 pix = gl_WorkGroupID.xy * 16u + tile_pixel(l);
+    uint W = P.dims.x, H = P.dims.y;
+    bool inside = pix.x < W && pix.y < H;
+    uint npix = W * H;
+    uint p = inside ? pix.y * W + pix.x : 0u;
+
+    vec3 rd;
+    float rd_norm;
+    pixel_ray(P, pix, rd, rd_norm);
+    vec3 inv_rd = 1.0 / rd;
+    uint sign = ray_sign_bits(rd);
+    float t_near = P.bg.w * rd_norm;
+
+    // Loss gradients of this pixel (render resolution).
+    vec3 dC = vec3(0.0), dN = vec3(0.0), gt = vec3(0.0);
+    float dD = 0.0, mtot = 0.0;
+    uint last = 0u;
+    float T = 1.0, A = 0.0, wa = 0.0, ma = 0.0;
+    if (inside) {
+        dC = vec3(B.dimg.v[DI_R * npix + p], B.dimg.v[DI_G * npix + p], B.dimg.v[DI_B * npix + p]);
+        dD = B.dimg.v[DI_DEPTH * npix + p] / rd_norm;  // out depth = ray distance / rd_norm
+        dN = vec3(B.dimg.v[DI_NX * npix + p], B.dimg.v[DI_NY * npix + p], B.dimg.v[DI_NZ * npix + p]);
+        gt = vec3(B.dimg.v[DI_GTR * npix + p], B.dimg.v[DI_GTG * npix + p], B.dimg.v[DI_GTB * npix + p]);
+        mtot = P.aux.v[AUX_M * npix + p];
+        last = P.last.v[p];
+        if (pc.chunk + 1u == B.cfg.x) {
+            T = P.aux.v[AUX_T * npix + p];
+            A = B.dimg.v[DI_T * npix + p];
+        } else {
+            T = B.bstate.v[BS_T * npix + p];
+            A = B.bstate.v[BS_A * npix + p];
+            wa = B.bstate.v[BS_WA * npix + p];
+            ma = B.bstate.v[BS_MA * npix + p];
+        }
+    }
+    float lam_dist = B.w.x, lam_r = B.w.y;
+
+    uint chunk_size = B.cfg.y;
+    uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
+    uint start = r0 + min(r1 - r0, pc.chunk * chunk_size);
+    uint end = min(r1, start + chunk_size);
+    // Nothing after the tile's last contributor matters.
+    if (l == 0u) s_last = 0u;
+    barrier();
+    atomicMax(s_last, last);
+    barrier();
+    end = min(end, max(s_last, start));
+    uint n = end - start;
+
+    for (uint top = n; top > 0u;) {
+        uint cnt = min(256u, top);
+        uint base = top - cnt;  // batch [base, top) of the chunk
+        top = base;
+        barrier();
+        if (l < cnt) {
+            uint val = P.svals.v[start + base + l];
+            uint v = val & 0x1fffffffu;
+            s_val[l] = val;
+            s_box[l] = uvec2(P.bbox.v[2u * v], P.bbox.v[2u * v + 1u]);
+            s_cs[l] = vec4(P.cs.v[4u * v], P.cs.v[4u * v + 1u], P.cs.v[4u * v + 2u], P.cs.v[4u * v + 3u]);
+            for (uint c = 0u; c < 8u; ++c) s_geo[8u * l + c] = P.geo8.v[8u * v + c];
+            for (uint c = 0u; c < 3u; ++c) {
+                s_rgb[3u * l + c] = P.rgb.v[3u * v + c];
+                s_nrm[3u * l + c] = P.nrm.v[3u * v + c];
+            }
+        }
+        barrier();
+
+        for (uint jj = cnt; jj > 0u; --jj) {
+            uint j = jj - 1u;
+            uint idx = start + base + j;
+            uvec2 box = s_box[j];
+            bool need = inside && idx < last && (s_val[j] >> 29u) == sign &&
+                        pix.x >= (box.x & 0xffffu) && pix.x <= (box.y & 0xffffu) &&
+                        pix.y >= (box.x >> 16u) && pix.y <= (box.y >> 16u);
+            if (!subgroupAny(need)) continue;
+
+            // Recompute the forward quantities of this entry (identically to composite).
+            vec4 cs = s_cs[j];
+            float h = 0.5 * cs.w;
+            vec2 ab = ray_aabb(cs.xyz - h, cs.xyz + h, rd, inv_rd);
+            float a = max(ab.x, t_near), b = ab.y;
+            need = need && a <= b;
+            float g[8];
+            for (uint c = 0u; c < 8u; ++c) g[c] = s_geo[8u * j + c];
+            float step_sz = (b - a) * (1.0 / float(N_SAMP));
+            vec3 vmin = cs.xyz - h;
+            float inv_size = 1.0 / cs.w;
+            float vol = 0.0;
+            float la[N_SAMP], lv[N_SAMP], rho[N_SAMP];
+            vec3 qs[N_SAMP];
+            for (int k = 0; k < N_SAMP; ++k) {
+                float t = a + (float(k) + 0.5) * step_sz;
+                qs[k] = (t * rd - vmin) * inv_size;
+                rho[k] = trilinear(g, qs[k]);
+                lv[k] = STEP_SZ_SCALE * step_sz * explin(rho[k]);
+                vol += lv[k];
+                la[k] = min(MAX_ALPHA, 1.0 - exp(-lv[k]));
+            }
+            float raw_alpha = 1.0 - exp(-vol);
+            float alpha = min(MAX_ALPHA, raw_alpha);
+            need = need && alpha >= MIN_ALPHA;
+
+            vec3 d_rgb = vec3(0.0), d_nrm = vec3(0.0);
+            float d_geo[8];
+            for (uint c = 0u; c < 8u; ++c) d_geo[c] = 0.0;
+            float prio = 0.0;
+            if (need) {
+                vec3 col = vec3(s_rgb[3u * j], s_rgb[3u * j + 1u], s_rgb[3u * j + 2u]);
+                vec3 nrm = vec3(s_nrm[3u * j], s_nrm[3u * j + 1u], s_nrm[3u * j + 2u]);
+                float Tk = T / (1.0 - alpha);
+                float w = Tk * alpha;
+                float mid = 0.5 * (a + b);
+                float delta = b - a;
+                // ∂L_dist/∂w_k (segments are constants).
+                float Wk = 1.0 - Tk;
+                float Mk = mtot - ma - w * mid;
+                float u = lam_dist * (2.0 * (mid * Wk - Mk) + 2.0 * (ma - mid * wa) +
+                                      (2.0 / 3.0) * w * delta);
+                vec3 diff = col - gt;
+                float r = lam_r * dot(diff, diff) * (1.0 / 3.0);
+                float lin = dot(dC, col) + dot(dN, nrm) + r + u;
+                float dval, dphi;
+#if N_SAMP == 1
+                dval = alpha * mid;
+                dphi = lin + dD * mid;
+#else
+                dval = 0.0;
+                float tr = 1.0;
+                float trs[N_SAMP];
+                for (int k = 0; k < N_SAMP; ++k) {
+                    trs[k] = tr;
+                    dval += tr * la[k] * (a + (float(k) + 0.5) * step_sz);
+                    tr *= 1.0 - la[k];
+                }
+                dphi = lin;
+#endif
+                float phi = alpha * lin + dD * dval;
+                float g_alpha = Tk * (dphi - A);
+                prio = abs(alpha * g_alpha);
+                float g_vol = raw_alpha > MAX_ALPHA ? 0.0 : g_alpha * exp(-vol);
+                float d_lv[N_SAMP];
+                for (int k = 0; k < N_SAMP; ++k) d_lv[k] = g_vol;
+#if N_SAMP > 1
+                // Depth of a K-sample segment: dval = Σ_s tr_s la_s t_s.
+                float S = 0.0;
+                for (int k = N_SAMP - 1; k >= 0; --k) {
+                    float t = a + (float(k) + 0.5) * step_sz;
+                    float dla = trs[k] * (t - S);
+                    float lraw = 1.0 - exp(-lv[k]);
+                    if (lraw <= MAX_ALPHA) d_lv[k] += Tk * dD * dla * exp(-lv[k]);
+                    S = la[k] * t + (1.0 - la[k]) * S;
+                }
+#endif
+                for (int k = 0; k < N_SAMP; ++k) {
+                    float coef = d_lv[k] * STEP_SZ_SCALE * step_sz * explin_grad(rho[k]);
+                    vec3 q = qs[k], q0 = 1.0 - q;
+                    for (uint c = 0u; c < 8u; ++c) {
+                        float wt = ((c & 4u) != 0u ? q.x : q0.x) * ((c & 2u) != 0u ? q.y : q0.y) *
+                                   ((c & 1u) != 0u ? q.z : q0.z);
+                        d_geo[c] += coef * wt;
+                    }
+                }
+                d_rgb = w * dC + (w * lam_r * (2.0 / 3.0)) * diff;
+                d_nrm = w * dN;
+                A = phi + (1.0 - alpha) * A;
+                wa += w;
+                ma += w * mid;
+                T = Tk;
+            }
+            // One voxel per entry: reduce over the subgroup, one lane adds globally.
+            if (!subgroupAny(need)) continue;
+            uint v = s_val[j] & 0x1fffffffu;
+            float red[VG_USED];
+            for (uint c = 0u; c < 8u; ++c) red[VG_GEO + c] = subgroupAdd(d_geo[c]);
+            for (uint c = 0u; c < 3u; ++c) {
+                red[VG_RGB + c] = subgroupAdd(d_rgb[c]);
+                red[VG_NRM + c] = subgroupAdd(d_nrm[c]);
+            }
+            red[VG_PRIO] = subgroupAdd(prio);
+            if (subgroupElect()) {
+                for (uint c = 0u; c < VG_USED; ++c)
+                    atomic_add_f32(B.vgrad, VG_STRIDE * v + c, red[c], B.lost);
+            }
+        }
+    }
+
+    if (inside) {
+        B.bstate.v[BS_T * npix + p] = T;
+        B.bstate.v[BS_A * npix + p] = A;
+        B.bstate.v[BS_WA * npix + p] = wa;
+        B.bstate.v[BS_MA * npix + p] = ma;
+    }
+}

@@ -1,0 +1,35 @@
+// Parameters of the training backward (not readonly: its references are passed to
+// atomic_add_f32), mirrored by `train::backward::BackParams` in
+// Rust: keep the two in sync.
+#ifndef BACKWARD_PARAMS_GLSL
+#define BACKWARD_PARAMS_GLSL
+#include "common.glsl"
+
+layout(buffer_reference, std430, buffer_reference_align = 16) buffer BackParams {
+    vec4 w;       // λ_dist, λ_R (per pixel, already divided by the pixel count), pad, pad
+    uvec4 cfg;    // chunks recorded, chunk size, voxels, pad
+    uvec4 dims;   // out width, out height, render width, render height
+    F32s dimg;    // per render pixel, planar DI_CHANNELS: loss gradients and ground truth
+    F32s dout;    // per output pixel, planar DO_CHANNELS: gradients w.r.t. the outputs + gt
+    F32s bstate;  // per render pixel, planar BS_CHANNELS: backward state between chunks
+    F32s vgrad;   // per voxel, VG_STRIDE floats
+    F32s grad_geo;  // per grid point
+    F32s grad_sh0;  // per voxel, 3
+    F32s grad_shs;  // per voxel, 3 * stored coefficients
+    F32s priority;  // per voxel, accumulated Σ|α ∂L/∂α|
+    U32s lost;      // CAS give-ups (atomic_f32.glsl)
+};
+
+// dout: gradients w.r.t. the frame's outputs at output resolution (rgb with background,
+// alpha, depth as camera z, normal) and the ground-truth rgb.
+const uint DO_R = 0u, DO_G = 1u, DO_B = 2u, DO_ALPHA = 3u, DO_DEPTH = 4u, DO_NX = 5u,
+           DO_NY = 6u, DO_NZ = 7u, DO_GTR = 8u, DO_GTG = 9u, DO_GTB = 10u, DO_CHANNELS = 11u;
+// dimg: the same at render resolution, w.r.t. the raw composited sums (C = Σ w c
+// without background, final transmittance T, depth as camera z, N = Σ w n).
+const uint DI_R = 0u, DI_G = 1u, DI_B = 2u, DI_T = 3u, DI_DEPTH = 4u, DI_NX = 5u,
+           DI_NY = 6u, DI_NZ = 7u, DI_GTR = 8u, DI_GTG = 9u, DI_GTB = 10u, DI_CHANNELS = 11u;
+const uint BS_T = 0u, BS_A = 1u, BS_WA = 2u, BS_MA = 3u, BS_CHANNELS = 4u;
+// Voxel gradient record: ∂L/∂(8 corner densities), ∂L/∂rgb, ∂L/∂normal, priority.
+const uint VG_GEO = 0u, VG_RGB = 8u, VG_NRM = 11u, VG_PRIO = 14u, VG_USED = 15u,
+           VG_STRIDE = 16u;
+#endif

@@ -1,0 +1,58 @@
+// Total variation of the grid-point densities (shared body of train/tv.comp and
+// train/tv_cas.comp). Thread per voxel v with corners corners[8v + c] (c = x<<2|y<<1|z):
+//   L_v = Σ over the 12 cube edges (a, b) of (geo[a] − geo[b])²
+//   grad[corner c] += weight · ∂L_v/∂geo[c] = weight · 2 Σ_{k<3} (geo[c] − geo[c ^ 1<<k])
+// The adds go through atomic_add_f32 (grid points are shared between voxels). The sum
+// of L_v over each workgroup (weight not applied) goes to partials[group] by a
+// shared-memory tree reduction; the host adds the partials in f64.
+// The including kernel must include atomic_f32.glsl first.
+layout(local_size_x = 256) in;
+
+layout(push_constant) uniform Push {
+    U32s corners;
+    F32s geo;
+    F32s grad;
+    F32s partials;
+    U32s lost;
+    uint voxels;
+    float weight;
+} pc;
+
+shared float red[256];
+
+void main() {
+    uint lid = gl_LocalInvocationID.x;
+    uint group = linear_group_id();
+    uint vox = group * 256u + lid;
+    float L = 0.0;
+    if (vox < pc.voxels) {
+        uint idx[8];
+        float g[8];
+        for (uint c = 0u; c < 8u; ++c) {
+            idx[c] = pc.corners.v[8u * vox + c];
+            g[c] = pc.geo.v[idx[c]];
+        }
+        // d[c] = Σ_k (g[c] − g[c ^ 1<<k]); each edge counted from both of its ends,
+        // so Σ_c over the positive-side ends gives L.
+        float d[8];
+        for (uint c = 0u; c < 8u; ++c) {
+            float e0 = g[c] - g[c ^ 4u];
+            float e1 = g[c] - g[c ^ 2u];
+            float e2 = g[c] - g[c ^ 1u];
+            d[c] = (e0 + e1) + e2;
+            // Count each edge once: from its end with the bit clear.
+            if ((c & 4u) == 0u) L += e0 * e0;
+            if ((c & 2u) == 0u) L += e1 * e1;
+            if ((c & 1u) == 0u) L += e2 * e2;
+        }
+        float s = 2.0 * pc.weight;
+        for (uint c = 0u; c < 8u; ++c) atomic_add_f32(pc.grad, idx[c], s * d[c], pc.lost);
+    }
+    red[lid] = L;
+    barrier();
+    for (uint w = 128u; w > 0u; w >>= 1u) {
+        if (lid < w) red[lid] += red[lid + w];
+        barrier();
+    }
+    if (lid == 0u) pc.partials.v[group] = red[0];
+}

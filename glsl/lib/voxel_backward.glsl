@@ -1,0 +1,71 @@
+// Training backward, per voxel (shared by train/voxel_backward[_cas].comp): the voxel's
+// accumulated ∂L/∂rgb through max(0, 0.5 + SH) to its SH coefficients (written, so
+// voxels off screen get zeros), ∂L/∂normal through n = ∇/|∇| and the centre gradient to
+// its 8 corner densities, and those through the corner indices into the grid points'
+// gradients (float atomics: neighbours share grid points). Adds the entry priorities.
+#include "atomic_f32.glsl"
+#include "raster_params.glsl"
+#include "sh.glsl"
+#include "trilinear.glsl"
+#include "backward_params.glsl"
+layout(local_size_x = 256) in;
+
+layout(push_constant) uniform Push {
+    FrameParams P;
+    BackParams B;
+} pc;
+
+void main() {
+    FrameParams P = pc.P;
+    BackParams B = pc.B;
+    uint v = linear_group_id() * 256u + gl_LocalInvocationID.x;
+    if (v >= P.cfg.x) return;
+    uint stride = P.cfg3.z;
+    uint degree = P.cfg.y;
+    uint nc = (degree + 1u) * (degree + 1u) - 1u;
+    if (P.counts.v[v] == 0u) {
+        for (uint c = 0u; c < 3u; ++c) B.grad_sh0.v[3u * v + c] = 0.0;
+        for (uint k = 0u; k < 3u * stride; ++k) B.grad_shs.v[3u * stride * v + k] = 0.0;
+        return;
+    }
+    uint rec = VG_STRIDE * v;
+    vec3 drgb = vec3(B.vgrad.v[rec + VG_RGB], B.vgrad.v[rec + VG_RGB + 1u], B.vgrad.v[rec + VG_RGB + 2u]);
+    vec3 dn = vec3(B.vgrad.v[rec + VG_NRM], B.vgrad.v[rec + VG_NRM + 1u], B.vgrad.v[rec + VG_NRM + 2u]);
+
+    // SH: recompute the unclamped colour to mask the max(0, .) clamp.
+    vec3 centre = vec3(P.cs.v[4u * v], P.cs.v[4u * v + 1u], P.cs.v[4u * v + 2u]);
+    float y[16];
+    sh_basis(normalize(centre), degree, y);
+    vec3 raw = y[0] * vec3(P.sh0.v[3u * v], P.sh0.v[3u * v + 1u], P.sh0.v[3u * v + 2u]);
+    for (uint k = 1u; k <= nc; ++k) {
+        uint base = (v * stride + (k - 1u)) * 3u;
+        raw += y[k] * vec3(P.shs.v[base], P.shs.v[base + 1u], P.shs.v[base + 2u]);
+    }
+    drgb = mix(vec3(0.0), drgb, greaterThan(raw + 0.5, vec3(0.0)));
+    for (uint c = 0u; c < 3u; ++c) B.grad_sh0.v[3u * v + c] = y[0] * drgb[c];
+    for (uint k = 1u; k <= stride; ++k) {
+        uint base = (v * stride + (k - 1u)) * 3u;
+        vec3 gk = k <= nc ? y[k] * drgb : vec3(0.0);
+        for (uint c = 0u; c < 3u; ++c) B.grad_shs.v[base + c] = gk[c];
+    }
+
+    // Normal n = ∇/|∇| of the centre gradient ∇ (zero gradient where |∇|² ≤ 1e-30).
+    float g[8], dg[8];
+    for (uint c = 0u; c < 8u; ++c) {
+        g[c] = P.geo8.v[8u * v + c];
+        dg[c] = B.vgrad.v[rec + VG_GEO + c];
+    }
+    vec3 grad = centre_gradient(g);
+    float l2 = dot(grad, grad);
+    if (l2 > 1e-30) {
+        float inv = inversesqrt(l2);
+        vec3 n = grad * inv;
+        vec3 dgrad = (dn - n * dot(n, dn)) * inv;
+        for (uint c = 0u; c < 8u; ++c) {
+            dg[c] += ((c & 4u) != 0u ? dgrad.x : -dgrad.x) + ((c & 2u) != 0u ? dgrad.y : -dgrad.y) +
+                     ((c & 1u) != 0u ? dgrad.z : -dgrad.z);
+        }
+    }
+    for (uint c = 0u; c < 8u; ++c) atomic_add_f32(B.grad_geo, P.corners.v[8u * v + c], dg[c], B.lost);
+    B.priority.v[v] += B.vgrad.v[rec + VG_PRIO];
+}

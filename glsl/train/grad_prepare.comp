@@ -1,0 +1,75 @@
+#version 460
+// Loss gradients from output to render resolution (training backward, step 1).
+// Per render pixel: the transpose of the frame's anti-aliasing downsample (tent filter
+// normalised per output pixel, exactly raster/downsample.comp) applied to the output
+// gradients, then the transpose of finalize: rgb = C + T·bg and alpha = 1 - T give
+// ∂L/∂C = ∂L/∂rgb and ∂L/∂T = bg·∂L/∂rgb - ∂L/∂alpha. The ground truth for the
+// per-point RGB loss is the output pixel containing the render pixel's centre.
+#include "raster_params.glsl"
+#include "backward_params.glsl"
+layout(local_size_x = 256) in;
+
+layout(push_constant) uniform Push {
+    FrameParams P;
+    BackParams B;
+} pc;
+
+// Sum of the tent weights of output pixel o along one axis (render size n).
+float tent_sum(float o, float scale, float rad, uint n) {
+    float centre = (o + 0.5) * scale;
+    int lo = max(int(floor(centre - rad)), 0);
+    int hi = min(int(ceil(centre + rad)), int(n) - 1);
+    float s = 0.0;
+    for (int i = lo; i <= hi; ++i) s += max(0.0, 1.0 - abs(float(i) + 0.5 - centre) / rad);
+    return s;
+}
+
+void main() {
+    FrameParams P = pc.P;
+    BackParams B = pc.B;
+    uint p = linear_group_id() * 256u + gl_LocalInvocationID.x;
+    uint W = P.dims.x, H = P.dims.y;
+    if (p >= W * H) return;
+    uint npix = W * H;
+    uint OW = B.dims.x, OH = B.dims.y;
+    uint nout = OW * OH;
+    uvec2 pix = uvec2(p % W, p / W);
+
+    float acc[8];
+    for (uint c = 0u; c < 8u; ++c) acc[c] = 0.0;
+    uint qgt;
+    if (P.cfg3.y == 0u) {
+        for (uint c = 0u; c < 8u; ++c) acc[c] = B.dout.v[c * nout + p];
+        qgt = p;
+    } else {
+        vec2 scale = P.ss.xy, rad = P.ss.zw;
+        vec2 x = vec2(pix) + 0.5;
+        // Output pixels whose footprint |x - (o + 0.5)·scale| < rad contains this pixel.
+        ivec2 olo = max(ivec2(floor((x - rad) / scale - 0.5)), ivec2(0));
+        ivec2 ohi = min(ivec2(ceil((x + rad) / scale - 0.5)), ivec2(OW, OH) - 1);
+        for (int oy = olo.y; oy <= ohi.y; ++oy) {
+            float wy = max(0.0, 1.0 - abs(x.y - (float(oy) + 0.5) * scale.y) / rad.y);
+            if (wy == 0.0) continue;
+            float sy = tent_sum(float(oy), scale.y, rad.y, H);
+            for (int ox = olo.x; ox <= ohi.x; ++ox) {
+                float wx = max(0.0, 1.0 - abs(x.x - (float(ox) + 0.5) * scale.x) / rad.x);
+                if (wx == 0.0) continue;
+                float w = wx * wy / (tent_sum(float(ox), scale.x, rad.x, W) * sy);
+                uint q = uint(oy) * OW + uint(ox);
+                for (uint c = 0u; c < 8u; ++c) acc[c] += w * B.dout.v[c * nout + q];
+            }
+        }
+        uvec2 o = min(uvec2(x / scale), uvec2(OW, OH) - 1u);
+        qgt = o.y * OW + o.x;
+    }
+    vec3 drgb = vec3(acc[DO_R], acc[DO_G], acc[DO_B]);
+    B.dimg.v[DI_R * npix + p] = drgb.x;
+    B.dimg.v[DI_G * npix + p] = drgb.y;
+    B.dimg.v[DI_B * npix + p] = drgb.z;
+    B.dimg.v[DI_T * npix + p] = dot(P.bg.xyz, drgb) - acc[DO_ALPHA];
+    B.dimg.v[DI_DEPTH * npix + p] = acc[DO_DEPTH];
+    B.dimg.v[DI_NX * npix + p] = acc[DO_NX];
+    B.dimg.v[DI_NY * npix + p] = acc[DO_NY];
+    B.dimg.v[DI_NZ * npix + p] = acc[DO_NZ];
+    for (uint c = 0u; c < 3u; ++c) B.dimg.v[(DI_GTR + c) * npix + p] = B.dout.v[(DO_GTR + c) * nout + qgt];
+}

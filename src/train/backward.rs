@@ -1,0 +1,383 @@
+//! The training backward (paper §3.2; DESIGN §4): from the loss gradients of a rendered
+//! frame to the gradients of every model parameter.
+//!
+//! Recorded after the frame (same [`Renderer`], nothing recorded in between):
+//! **grad_prepare** (output → render resolution: transposed downsample and finalize) →
+//! **backward** chunks, last first (workgroup per tile, back to front; subgroup
+//! reductions, one float atomic per subgroup and voxel) → **voxel_backward** (SH
+//! coefficients, normals, scatter to grid points). Devices without
+//! `shaderBufferFloat32AtomicAdd` get compare-and-swap variants of the two atomic kernels.
+
+use ash::vk;
+
+use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
+use crate::push_constants;
+use crate::raster::{FrameGeometry, FrameStats, SceneGpu};
+use crate::{Error, Result};
+
+/// Planar channels of the output-resolution gradient image the losses write
+/// (`DO_*` in glsl/lib/backward_params.glsl).
+pub mod dout {
+    pub const R: usize = 0;
+    pub const G: usize = 1;
+    pub const B: usize = 2;
+    pub const ALPHA: usize = 3;
+    pub const DEPTH: usize = 4;
+    pub const NX: usize = 5;
+    pub const NY: usize = 6;
+    pub const NZ: usize = 7;
+    pub const GT_R: usize = 8;
+    pub const GT_G: usize = 9;
+    pub const GT_B: usize = 10;
+    pub const CHANNELS: usize = 11;
+}
+const DI_CHANNELS: u64 = 11;
+const BS_CHANNELS: u64 = 4;
+/// Floats per voxel of the per-voxel gradient record.
+const VG_STRIDE: u64 = 16;
+
+/// Gradients of the model parameters (same layouts as [`SceneGpu`]'s buffers), and the
+/// per-voxel subdivision priority Σ|α·∂L/∂α|, which accumulates over backward passes
+/// until [`Gradients::record_clear_priority`].
+pub struct Gradients {
+    pub geo: Buffer,
+    pub sh0: Buffer,
+    pub shs: Buffer,
+    pub priority: Buffer,
+    pub voxels: u32,
+    pub grid_points: u32,
+    pub shs_per_voxel: u32,
+}
+
+impl Gradients {
+    /// Zeroed gradient buffers for `scene`.
+    pub fn new(ctx: &Context, scene: &SceneGpu) -> Result<Gradients> {
+        let n = scene.voxels.max(1) as u64;
+        let mk = |name: &str, floats: u64| -> Result<Buffer> {
+            let b = ctx.buffer(name, floats.max(1) * 4, Memory::Device)?;
+            ctx.submit_and_wait(|cmd| {
+                recorder::fill(ctx, cmd, &b, 0, vk::WHOLE_SIZE, 0);
+                Ok(())
+            })?;
+            Ok(b)
+        };
+        Ok(Gradients {
+            geo: mk("grad.geo", scene.grid_points as u64)?,
+            sh0: mk("grad.sh0", n * 3)?,
+            shs: mk("grad.shs", n * 3 * scene.shs_per_voxel as u64)?,
+            priority: mk("grad.priority", n)?,
+            voxels: scene.voxels,
+            grid_points: scene.grid_points,
+            shs_per_voxel: scene.shs_per_voxel,
+        })
+    }
+
+    /// Records zeroing the accumulated priority.
+    pub fn record_clear_priority(&self, ctx: &Context, cmd: vk::CommandBuffer) {
+        recorder::fill(ctx, cmd, &self.priority, 0, vk::WHOLE_SIZE, 0);
+    }
+
+    fn matches(&self, scene: &SceneGpu) -> bool {
+        self.voxels == scene.voxels
+            && self.grid_points == scene.grid_points
+            && self.shs_per_voxel == scene.shs_per_voxel
+    }
+}
+
+/// Loss weights the backward applies per entry (per render pixel: divide the loss
+/// weight by the number of render pixels for a mean).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EntryLosses {
+    /// Distortion loss weight.
+    pub lambda_dist: f32,
+    /// Per-point RGB loss weight.
+    pub lambda_r: f32,
+}
+
+/// Mirror of `BackParams` in glsl/lib/backward_params.glsl.
+#[repr(C)]
+#[derive(Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
+struct BackParams {
+    w: [f32; 4],
+    cfg: [u32; 4],
+    dims: [u32; 4],
+    dimg: u64,
+    dout: u64,
+    bstate: u64,
+    vgrad: u64,
+    grad_geo: u64,
+    grad_sh0: u64,
+    grad_shs: u64,
+    priority: u64,
+    lost: u64,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct Push2 {
+    frame: u64,
+    back: u64,
+}
+push_constants!(Push2, kernels::TRAIN_GRAD_PREPARE);
+push_constants!(Push2, kernels::TRAIN_VOXEL_BACKWARD);
+push_constants!(Push2, kernels::TRAIN_VOXEL_BACKWARD_CAS);
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct ChunkPush {
+    frame: u64,
+    back: u64,
+    chunk: u32,
+    pad: u32,
+}
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_CAS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_CAS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_CAS);
+
+/// Device buffer that only grows.
+fn ensure(ctx: &Context, slot: &mut Option<Buffer>, name: &str, bytes: u64) -> Result<()> {
+    let bytes = bytes.max(16);
+    if slot.as_ref().is_some_and(|b| b.size() >= bytes) {
+        return Ok(());
+    }
+    *slot = None;
+    *slot = Some(ctx.buffer(name, bytes + bytes / 4, Memory::Device)?);
+    Ok(())
+}
+
+/// The backward pass with its kernels and scratch buffers.
+pub struct Backward {
+    ctx: Context,
+    prepare_k: Kernel,
+    backward: [Kernel; 3],
+    voxel: Kernel,
+    float_atomics: bool,
+    chunk_size: u32,
+    params: Buffer,
+    lost: Buffer,
+    dout: Option<Buffer>,
+    dimg: Option<Buffer>,
+    bstate: Option<Buffer>,
+    vgrad: Option<Buffer>,
+}
+
+impl Backward {
+    /// Kernels for this device: native float atomics when the device has them and
+    /// `float_atomics` allows it, compare-and-swap otherwise.
+    pub fn new(ctx: &Context, float_atomics: bool) -> Result<Backward> {
+        let fa = float_atomics && ctx.info().float_atomic_add;
+        let (k, v) = if fa {
+            (
+                [
+                    &kernels::TRAIN_BACKWARD_K1,
+                    &kernels::TRAIN_BACKWARD_K2,
+                    &kernels::TRAIN_BACKWARD_K3,
+                ],
+                &kernels::TRAIN_VOXEL_BACKWARD,
+            )
+        } else {
+            (
+                [
+                    &kernels::TRAIN_BACKWARD_K1_CAS,
+                    &kernels::TRAIN_BACKWARD_K2_CAS,
+                    &kernels::TRAIN_BACKWARD_K3_CAS,
+                ],
+                &kernels::TRAIN_VOXEL_BACKWARD_CAS,
+            )
+        };
+        let lost = ctx.buffer("backward.lost", 16, Memory::Device)?;
+        ctx.submit_and_wait(|cmd| {
+            recorder::fill(ctx, cmd, &lost, 0, vk::WHOLE_SIZE, 0);
+            Ok(())
+        })?;
+        Ok(Backward {
+            ctx: ctx.clone(),
+            prepare_k: Kernel::new(ctx, &kernels::TRAIN_GRAD_PREPARE)?,
+            backward: [
+                Kernel::new(ctx, k[0])?,
+                Kernel::new(ctx, k[1])?,
+                Kernel::new(ctx, k[2])?,
+            ],
+            voxel: Kernel::new(ctx, v)?,
+            float_atomics: fa,
+            // llvmpipe's loop limit (65 535 trips per invocation): the per-entry work has
+            // more loops than the forward's (samples x corners, and a CAS loop per add).
+            chunk_size: if ctx.info().is_cpu {
+                if fa {
+                    2048
+                } else {
+                    1024
+                }
+            } else {
+                1 << 22
+            },
+            params: ctx.buffer(
+                "backward.params",
+                std::mem::size_of::<BackParams>() as u64,
+                Memory::Device,
+            )?,
+            lost,
+            dout: None,
+            dimg: None,
+            bstate: None,
+            vgrad: None,
+        })
+    }
+
+    /// Whether the native float-atomic kernels are in use.
+    pub fn float_atomics(&self) -> bool {
+        self.float_atomics
+    }
+
+    /// Entries per backward dispatch (tests shrink it to exercise chunking).
+    pub fn set_chunk_size(&mut self, entries: u32) {
+        self.chunk_size = entries.max(1);
+    }
+
+    /// Allocates the scratch a frame of this geometry and voxel count needs.
+    pub fn prepare(&mut self, frame: &FrameGeometry, voxels: u32) -> Result<()> {
+        let ctx = self.ctx.clone();
+        let opix = frame.out_width as u64 * frame.out_height as u64;
+        let rpix = frame.render_width as u64 * frame.render_height as u64;
+        ensure(
+            &ctx,
+            &mut self.dout,
+            "backward.dout",
+            opix * dout::CHANNELS as u64 * 4,
+        )?;
+        ensure(
+            &ctx,
+            &mut self.dimg,
+            "backward.dimg",
+            rpix * DI_CHANNELS * 4,
+        )?;
+        ensure(
+            &ctx,
+            &mut self.bstate,
+            "backward.state",
+            rpix * BS_CHANNELS * 4,
+        )?;
+        ensure(
+            &ctx,
+            &mut self.vgrad,
+            "backward.voxel-grads",
+            voxels.max(1) as u64 * VG_STRIDE * 4,
+        )?;
+        Ok(())
+    }
+
+    /// The output-resolution gradient image (planar [`dout::CHANNELS`] channels) the
+    /// losses write before [`Backward::record`]; every channel must be written.
+    pub fn dout(&self) -> Result<&Buffer> {
+        self.dout
+            .as_ref()
+            .ok_or_else(|| Error::Invalid("Backward::dout before Backward::prepare".into()))
+    }
+
+    /// Records the backward of the renderer's last frame into `cmd`: overwrites
+    /// `grads.geo`, `grads.sh0`, `grads.shs` and adds to `grads.priority`.
+    /// `stats` are the frame's completed [`FrameStats`] (its longest tile list sets
+    /// the number of chunks).
+    #[allow(clippy::too_many_arguments)]
+    pub fn record(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        frame: &FrameGeometry,
+        stats: &FrameStats,
+        scene: &SceneGpu,
+        samples: u32,
+        grads: &Gradients,
+        losses: &EntryLosses,
+    ) -> Result<()> {
+        if !(1..=3).contains(&samples) {
+            return Err(Error::Invalid(format!(
+                "samples must be 1..=3, got {samples}"
+            )));
+        }
+        if !grads.matches(scene) {
+            return Err(Error::Invalid(
+                "gradient buffers were made for a different scene".into(),
+            ));
+        }
+        if !stats.complete() {
+            return Err(Error::Invalid(
+                "the backward needs a complete frame (see Renderer::grow_for)".into(),
+            ));
+        }
+        self.prepare(frame, scene.voxels)?;
+        let ctx = self.ctx.clone();
+        let chunks = stats.max_tile_entries.div_ceil(self.chunk_size).max(1);
+        let get = |b: &Option<Buffer>| b.as_ref().expect("prepared").address();
+        let params = BackParams {
+            w: [losses.lambda_dist, losses.lambda_r, 0.0, 0.0],
+            cfg: [chunks, self.chunk_size, scene.voxels, 0],
+            dims: [
+                frame.out_width,
+                frame.out_height,
+                frame.render_width,
+                frame.render_height,
+            ],
+            dimg: get(&self.dimg),
+            dout: get(&self.dout),
+            bstate: get(&self.bstate),
+            vgrad: get(&self.vgrad),
+            grad_geo: grads.geo.address(),
+            grad_sh0: grads.sh0.address(),
+            grad_shs: grads.shs.address(),
+            priority: grads.priority.address(),
+            lost: self.lost.address(),
+        };
+        let dev = ctx.device();
+        unsafe {
+            dev.cmd_update_buffer(cmd, self.params.raw(), 0, bytemuck::bytes_of(&params));
+        }
+        recorder::fill(
+            &ctx,
+            cmd,
+            self.vgrad.as_ref().expect("prepared"),
+            0,
+            vk::WHOLE_SIZE,
+            0,
+        );
+        recorder::fill(&ctx, cmd, &grads.geo, 0, vk::WHOLE_SIZE, 0);
+        recorder::barrier(&ctx, cmd);
+        let max_x = ctx.info().max_compute_work_group_count[0];
+        let p2 = Push2 {
+            frame: frame.params,
+            back: self.params.address(),
+        };
+        let rpix = frame.render_width * frame.render_height;
+        self.prepare_k
+            .dispatch(cmd, &p2, crate::gpu::grid_2d(rpix.div_ceil(256), max_x));
+        recorder::barrier(&ctx, cmd);
+        let k = &self.backward[samples as usize - 1];
+        for chunk in (0..chunks).rev() {
+            k.dispatch(
+                cmd,
+                &ChunkPush {
+                    frame: frame.params,
+                    back: self.params.address(),
+                    chunk,
+                    pad: 0,
+                },
+                [frame.tiles_x, frame.tiles_y, 1],
+            );
+            recorder::barrier(&ctx, cmd);
+        }
+        self.voxel.dispatch(
+            cmd,
+            &p2,
+            crate::gpu::grid_2d(scene.voxels.max(1).div_ceil(256), max_x),
+        );
+        recorder::barrier(&ctx, cmd);
+        Ok(())
+    }
+
+    /// Compare-and-swap float adds that gave up (must stay 0; see atomic_f32.glsl).
+    pub fn read_lost(&self) -> Result<u32> {
+        Ok(self.ctx.download::<u32>(&self.lost, 0, 1)?[0])
+    }
+}

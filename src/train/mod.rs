@@ -1,0 +1,5 @@
+//! Training: backward pass, losses, optimiser and the training loop (paper §3.2).
+
+pub mod backward;
+pub mod optim;
+pub mod ssim;

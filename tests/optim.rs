@@ -1,0 +1,697 @@
+//! Adam and the density-grid TV regulariser against f64 CPU references.
+//!
+//! Stated bounds (f32 GPU vs f64 reference):
+//! - Adam, 5 steps: |m − m_ref| ≤ ADAM_TOL · m_abs, where m_abs is the same moving
+//!   average of |g| (m can cancel); |v − v_ref| ≤ ADAM_TOL · max(v_ref, f32::MIN_POSITIVE)
+//!   (v below the smallest normal f32 may flush to 0); |p − p_ref| ≤ ADAM_TOL ·
+//!   (|p_ref| + t·lr). Elements with a saturated v (|g| = 1e20 every step) are compared
+//!   with the f64 reference, which saturates v at `f32::MAX` too.
+//! - TV: |L − L_ref| ≤ TV_VALUE_TOL · L_ref; per grid point |grad − grad_ref| ≤
+//!   (n + 4)·2⁻²⁴ · (|grad₀| + |w| · Σ over its n corner slots of 2·Σ_k |Δg|) (n f32
+//!   atomic adds in any order); the reference gradient matches central differences
+//!   within 1e-9·max(|grad|, 1) + 16·ε₆₄·L/h.
+
+mod common;
+
+use common::{context, finish, Rng};
+use svraster::gpu::{recorder, Buffer, Context, Memory};
+use svraster::train::optim::{Adam, AdamConfig, Tv};
+
+const ADAM_TOL: f64 = 1e-6;
+const TV_VALUE_TOL: f64 = 2e-6;
+
+/// The TV gradient bound of a point receiving `adds` f32 atomic adds: (adds + 4) units
+/// of f32 rounding (2⁻²⁴) — recursive summation in any order, plus the rounding of each
+/// term — times the point's scale.
+fn grad_units(adds: u32) -> f64 {
+    f64::from(adds + 4) * f64::from(f32::EPSILON) * 0.5
+}
+
+// ---------------------------------------------------------------------------------
+// Adam
+// ---------------------------------------------------------------------------------
+
+/// f64 Adam state of one element, plus the moving average of |g| as an error scale.
+/// The kernel's one deliberate departure is modelled: v saturates at `f32::MAX` (the
+/// true v of |g| ≳ 1.8e19 sustained over steps is not representable in f32).
+#[derive(Clone, Copy, Default)]
+struct RefAdam {
+    p: f64,
+    m: f64,
+    v: f64,
+    m_abs: f64,
+    saturated: bool,
+}
+
+fn ref_adam_step(s: &mut RefAdam, g: f64, t: u32, cfg: &AdamConfig) {
+    let (b1, b2) = (f64::from(cfg.beta1), f64::from(cfg.beta2));
+    let (lr, eps) = (f64::from(cfg.lr), f64::from(cfg.eps));
+    s.m = b1 * s.m + (1.0 - b1) * g;
+    s.m_abs = b1 * s.m_abs + (1.0 - b1) * g.abs();
+    s.v = b2 * s.v + (1.0 - b2) * g * g;
+    if s.v > f64::from(f32::MAX) {
+        s.v = f64::from(f32::MAX);
+        s.saturated = true;
+    }
+    let bc1 = 1.0 - b1.powi(t as i32);
+    let bc2 = 1.0 - b2.powi(t as i32);
+    s.p -= lr * (s.m / bc1) / ((s.v / bc2).sqrt() + eps);
+}
+
+/// A gradient: zeros, tiny (±1e-30), huge (±1e20), and magnitudes 10^[-20, 4].
+fn random_grad(rng: &mut Rng) -> f32 {
+    let sign = if rng.below(2) == 0 { 1.0 } else { -1.0 };
+    let u = rng.unit();
+    let mag = if u < 0.1 {
+        0.0
+    } else if u < 0.15 {
+        1e-30
+    } else if u < 0.16 {
+        1e20
+    } else {
+        10f64.powf(rng.range(-20.0, 4.0))
+    };
+    (sign * mag) as f32
+}
+
+struct AdamBufs {
+    p: Buffer,
+    g: Buffer,
+    m: Buffer,
+    v: Buffer,
+}
+
+impl AdamBufs {
+    fn new(ctx: &Context, p: &[f32], m: &[f32], v: &[f32]) -> AdamBufs {
+        AdamBufs {
+            p: ctx.buffer_from("test.p", p).unwrap(),
+            g: ctx
+                .buffer("test.g", p.len() as u64 * 4, Memory::Device)
+                .unwrap(),
+            m: ctx.buffer_from("test.m", m).unwrap(),
+            v: ctx.buffer_from("test.v", v).unwrap(),
+        }
+    }
+    fn step(&self, ctx: &Context, adam: &Adam, grads: &[f32], t: u32, cfg: &AdamConfig) {
+        ctx.upload(&self.g, 0, grads).unwrap();
+        let n = grads.len() as u32;
+        ctx.submit_and_wait(|cmd| {
+            adam.record(
+                cmd,
+                self.p.address(),
+                self.g.address(),
+                self.m.address(),
+                self.v.address(),
+                n,
+                t,
+                cfg,
+            );
+            Ok(())
+        })
+        .unwrap();
+    }
+    fn read(&self, ctx: &Context) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+        (
+            ctx.download_all(&self.p).unwrap(),
+            ctx.download_all(&self.m).unwrap(),
+            ctx.download_all(&self.v).unwrap(),
+        )
+    }
+}
+
+#[test]
+fn adam_matches_f64_reference() {
+    let ctx = context();
+    let adam = Adam::new(&ctx).unwrap();
+    let cfg = AdamConfig::default();
+    assert_eq!(
+        cfg,
+        AdamConfig {
+            lr: 1e-3,
+            beta1: 0.1,
+            beta2: 0.99,
+            eps: 1e-15
+        }
+    );
+    let mut rng = Rng(0xada0);
+    let n = 100_003usize;
+    // Special elements: 0 and 1 get ±1e20 every step (v saturates at f32::MAX from step
+    // 4 on), 2 gets exactly 0 every step.
+    const SAT: [usize; 2] = [0, 1];
+    const ZERO: usize = 2;
+    let p0: Vec<f32> = (0..n)
+        .map(|i| {
+            if i % 97 == 0 {
+                rng.range(-1e4, 1e4) as f32
+            } else {
+                rng.range(-3.0, 3.0) as f32
+            }
+        })
+        .collect();
+    let bufs = AdamBufs::new(&ctx, &p0, &vec![0.0; n], &vec![0.0; n]);
+    let mut refs: Vec<RefAdam> = p0
+        .iter()
+        .map(|&p| RefAdam {
+            p: f64::from(p),
+            ..Default::default()
+        })
+        .collect();
+    let mut worst = (0.0f64, 0.0f64, 0.0f64);
+    for t in 1..=5u32 {
+        let mut grads: Vec<f32> = (0..n).map(|_| random_grad(&mut rng)).collect();
+        grads[SAT[0]] = 1e20;
+        grads[SAT[1]] = -1e20;
+        grads[ZERO] = 0.0;
+        for (s, &g) in refs.iter_mut().zip(&grads) {
+            ref_adam_step(s, f64::from(g), t, &cfg);
+        }
+        bufs.step(&ctx, &adam, &grads, t, &cfg);
+        let (p, m, v) = bufs.read(&ctx);
+        for i in 0..n {
+            let r = &refs[i];
+            assert!(
+                !r.saturated || SAT.contains(&i),
+                "element {i}: unplanned v overflow"
+            );
+            let em = (f64::from(m[i]) - r.m).abs() / r.m_abs.max(f64::from(f32::MIN_POSITIVE));
+            let ev = (f64::from(v[i]) - r.v).abs() / r.v.max(f64::from(f32::MIN_POSITIVE));
+            let ep = (f64::from(p[i]) - r.p).abs() / (r.p.abs() + t as f64 * f64::from(cfg.lr));
+            assert!(
+                em <= ADAM_TOL && ev <= ADAM_TOL && ep <= ADAM_TOL,
+                "step {t} element {i}: g {} p {} (ref {}) m {} (ref {}) v {} (ref {}): \
+                 errors {em:e} {ev:e} {ep:e}",
+                grads[i],
+                p[i],
+                r.p,
+                m[i],
+                r.m,
+                v[i],
+                r.v
+            );
+            worst = (worst.0.max(em), worst.1.max(ev), worst.2.max(ep));
+        }
+        for &i in &SAT {
+            assert!(p[i].is_finite() && m[i].is_finite() && v[i].is_finite());
+            assert_eq!(refs[i].saturated, t >= 4);
+            if t >= 4 {
+                assert_eq!(v[i], f32::MAX, "v saturates instead of overflowing");
+            }
+        }
+        assert_eq!(
+            p[ZERO].to_bits(),
+            p0[ZERO].to_bits(),
+            "zero gradient moved p"
+        );
+        assert_eq!((m[ZERO], v[ZERO]), (0.0, 0.0));
+    }
+    assert!(
+        !adam.read_nonfinite().unwrap(),
+        "no non-finite value was involved"
+    );
+    println!(
+        "adam: max rel error m {:.3e}, v {:.3e}, p {:.3e} (bound {ADAM_TOL:e})",
+        worst.0, worst.1, worst.2
+    );
+    finish(&ctx);
+}
+
+#[test]
+fn adam_zero_gradient_is_exact_noop() {
+    let ctx = context();
+    let adam = Adam::new(&ctx).unwrap();
+    let mut rng = Rng(7);
+    let n = 4099usize;
+    let p0: Vec<f32> = (0..n).map(|_| rng.range(-5.0, 5.0) as f32).collect();
+    let bufs = AdamBufs::new(&ctx, &p0, &vec![0.0; n], &vec![0.0; n]);
+    // Also with eps = 0 (0/0 must not happen) and a different config.
+    let configs = [
+        AdamConfig::default(),
+        AdamConfig {
+            lr: 0.5,
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 0.0,
+        },
+    ];
+    for (k, cfg) in configs.iter().enumerate() {
+        for t in 1..=3 {
+            bufs.step(&ctx, &adam, &vec![0.0; n], t + 3 * k as u32, cfg);
+        }
+    }
+    let (p, m, v) = bufs.read(&ctx);
+    for i in 0..n {
+        assert_eq!(p[i].to_bits(), p0[i].to_bits(), "element {i}");
+        assert_eq!((m[i].to_bits(), v[i].to_bits()), (0, 0), "element {i}");
+    }
+    assert!(!adam.read_nonfinite().unwrap());
+    finish(&ctx);
+}
+
+#[test]
+fn adam_flags_non_finite() {
+    let ctx = context();
+    let adam = Adam::new(&ctx).unwrap();
+    let cfg = AdamConfig::default();
+    let n = 1000usize;
+    let p0: Vec<f32> = (0..n).map(|i| i as f32 * 0.01 - 3.0).collect();
+    let m0 = vec![0.25f32; n];
+    let v0 = vec![0.5f32; n];
+    let bufs = AdamBufs::new(&ctx, &p0, &m0, &v0);
+    assert!(!adam.read_nonfinite().unwrap(), "flag starts clear");
+
+    let finite: Vec<f32> = (0..n).map(|i| (i as f32 - 500.0) * 0.1).collect();
+    for (i, bad) in [
+        (17usize, f32::NAN),
+        (900, f32::INFINITY),
+        (3, f32::NEG_INFINITY),
+    ] {
+        let mut g = finite.clone();
+        g[i] = bad;
+        bufs.step(&ctx, &adam, &g, 1, &cfg);
+        assert!(
+            adam.read_nonfinite().unwrap(),
+            "{bad} gradient at {i} not flagged"
+        );
+        let (p, m, v) = bufs.read(&ctx);
+        // The offending element keeps its state (no NaN spreads into it).
+        assert!(p[i].is_finite() && m[i].is_finite() && v[i].is_finite());
+        ctx.submit_and_wait(|cmd| {
+            adam.record_reset(cmd);
+            Ok(())
+        })
+        .unwrap();
+        assert!(!adam.read_nonfinite().unwrap(), "reset clears the flag");
+    }
+    let (p_before, _, _) = bufs.read(&ctx);
+    assert!(p_before[17].to_bits() != p0[17].to_bits() || finite[17] == 0.0);
+
+    // Finite everything: no flag.
+    bufs.step(&ctx, &adam, &finite, 2, &cfg);
+    assert!(!adam.read_nonfinite().unwrap());
+
+    // A parameter pushed past f32::MAX (huge lr): the new p is -inf, flagged.
+    let mut p = p_before;
+    p[5] = f32::MAX;
+    ctx.upload(&bufs.p, 0, &p).unwrap();
+    let big = AdamConfig { lr: 1e38, ..cfg };
+    let mut g = vec![0.0f32; n];
+    g[5] = -1.0; // m < 0 (earlier gradients of element 5 are negative too): p grows
+    bufs.step(&ctx, &adam, &g, 3, &big);
+    assert!(adam.read_nonfinite().unwrap(), "overflowing p not flagged");
+    ctx.submit_and_wait(|cmd| {
+        adam.record_reset(cmd);
+        Ok(())
+    })
+    .unwrap();
+    assert!(!adam.read_nonfinite().unwrap());
+    finish(&ctx);
+}
+
+/// More than `maxComputeWorkGroupCount[0]` workgroups: the 2-D grid covers every
+/// element once and nothing past `count`.
+#[test]
+fn adam_two_dimensional_grid() {
+    let ctx = context();
+    let max_x = ctx.info().max_compute_work_group_count[0];
+    if u64::from(max_x) * 256 > 1 << 26 {
+        eprintln!("skipped: maxComputeWorkGroupCount[0] = {max_x} needs no 2-D grid here");
+        return;
+    }
+    let adam = Adam::new(&ctx).unwrap();
+    let cfg = AdamConfig::default();
+    let count = (max_x + 2) * 256 + 77;
+    let slack = 300u64;
+    let bytes = (u64::from(count) + slack) * 4;
+    let mk = |name| ctx.buffer(name, bytes, Memory::Device).unwrap();
+    let (p, g, m, v) = (mk("p"), mk("g"), mk("m"), mk("v"));
+    ctx.submit_and_wait(|cmd| {
+        recorder::fill(&ctx, cmd, &p, 0, bytes, 1.0f32.to_bits());
+        recorder::fill(&ctx, cmd, &g, 0, bytes, 0.5f32.to_bits());
+        recorder::fill(&ctx, cmd, &m, 0, bytes, 0);
+        recorder::fill(&ctx, cmd, &v, 0, bytes, 0);
+        recorder::barrier(&ctx, cmd);
+        adam.record(
+            cmd,
+            p.address(),
+            g.address(),
+            m.address(),
+            v.address(),
+            count,
+            1,
+            &cfg,
+        );
+        Ok(())
+    })
+    .unwrap();
+    let pv: Vec<f32> = ctx.download_all(&p).unwrap();
+    let mv: Vec<f32> = ctx.download_all(&m).unwrap();
+    let n = count as usize;
+    // Step 1 from zero state moves by lr·sign(g) (up to rounding).
+    assert!((f64::from(pv[0]) - (1.0 - f64::from(cfg.lr))).abs() < 1e-6);
+    assert!(
+        pv[..n].iter().all(|&x| x == pv[0]),
+        "every element updated alike"
+    );
+    assert!(mv[..n].iter().all(|&x| x == mv[0]) && mv[0] != 0.0);
+    assert!(pv[n..].iter().all(|&x| x == 1.0), "nothing past count");
+    assert!(mv[n..].iter().all(|&x| x == 0.0), "nothing past count");
+    finish(&ctx);
+}
+
+// ---------------------------------------------------------------------------------
+// TV
+// ---------------------------------------------------------------------------------
+
+/// Voxels × 8 corner indices into a grid of `points` densities.
+struct Layout {
+    corners: Vec<u32>,
+    points: usize,
+}
+
+/// A dense n³ grid of voxels over (n+1)³ points plus `extra` unreferenced points, with
+/// voxel order and point indices randomly permuted.
+fn dense_layout(rng: &mut Rng, n: usize, extra: usize) -> Layout {
+    let np = n + 1;
+    let points = np * np * np + extra;
+    let mut perm: Vec<u32> = (0..points as u32).collect();
+    shuffle(rng, &mut perm);
+    let mut voxels: Vec<[u32; 8]> = Vec::with_capacity(n * n * n);
+    for x in 0..n {
+        for y in 0..n {
+            for z in 0..n {
+                let mut c8 = [0u32; 8];
+                for (c, slot) in c8.iter_mut().enumerate() {
+                    let (dx, dy, dz) = (c >> 2 & 1, c >> 1 & 1, c & 1);
+                    let lin = ((x + dx) * np + (y + dy)) * np + (z + dz);
+                    *slot = perm[lin];
+                }
+                voxels.push(c8);
+            }
+        }
+    }
+    shuffle(rng, &mut voxels);
+    Layout {
+        corners: voxels.into_iter().flatten().collect(),
+        points,
+    }
+}
+
+/// Voxels whose corners are drawn at random from a small pool: heavy sharing and
+/// contention on the gradient words (corners may even repeat within a voxel).
+fn pool_layout(rng: &mut Rng, voxels: usize, pool: usize) -> Layout {
+    Layout {
+        corners: (0..voxels * 8)
+            .map(|_| rng.below(pool as u64) as u32)
+            .collect(),
+        points: pool,
+    }
+}
+
+fn shuffle<T>(rng: &mut Rng, v: &mut [T]) {
+    for i in (1..v.len()).rev() {
+        let j = rng.below(i as u64 + 1) as usize;
+        v.swap(i, j);
+    }
+}
+
+fn random_geo(rng: &mut Rng, points: usize) -> Vec<f32> {
+    (0..points)
+        .map(|_| {
+            if rng.unit() < 0.05 {
+                rng.range(-300.0, 300.0) as f32
+            } else {
+                rng.range(-5.0, 5.0) as f32
+            }
+        })
+        .collect()
+}
+
+/// L_tv in f64.
+fn ref_tv_value(corners: &[u32], geo: &[f64]) -> f64 {
+    let mut l = 0.0;
+    for c8 in corners.chunks_exact(8) {
+        for a in 0..8 {
+            for k in [4, 2, 1] {
+                if a & k == 0 {
+                    let d = geo[c8[a] as usize] - geo[c8[a | k] as usize];
+                    l += d * d;
+                }
+            }
+        }
+    }
+    l
+}
+
+/// ∂L_tv/∂geo in f64, per point the scale Σ 2·Σ_k |Δg| of its contributions, and the
+/// number of contributions (corner slots naming the point).
+fn ref_tv_grad(corners: &[u32], geo: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<u32>) {
+    let mut grad = vec![0.0; geo.len()];
+    let mut scale = vec![0.0; geo.len()];
+    let mut adds = vec![0u32; geo.len()];
+    for c8 in corners.chunks_exact(8) {
+        for a in 0..8 {
+            let ga = geo[c8[a] as usize];
+            let (mut d, mut s) = (0.0, 0.0);
+            for k in [4, 2, 1] {
+                let e = ga - geo[c8[a ^ k] as usize];
+                d += e;
+                s += e.abs();
+            }
+            grad[c8[a] as usize] += 2.0 * d;
+            scale[c8[a] as usize] += 2.0 * s;
+            adds[c8[a] as usize] += 1;
+        }
+    }
+    (grad, scale, adds)
+}
+
+struct TvErrors {
+    value: f64,
+    grad: f64,
+}
+
+/// Runs the GPU TV (weight, initial gradient contents) and compares with the reference.
+fn check_tv(
+    ctx: &Context,
+    tv: &mut Tv,
+    layout: &Layout,
+    geo: &[f32],
+    weight: f32,
+    rng: &mut Rng,
+) -> TvErrors {
+    let voxels = (layout.corners.len() / 8) as u32;
+    let grad0: Vec<f32> = (0..layout.points)
+        .map(|i| {
+            if i % 3 == 0 {
+                0.0
+            } else {
+                rng.range(-10.0, 10.0) as f32
+            }
+        })
+        .collect();
+    let corners_b = ctx.buffer_from("test.corners", &layout.corners).unwrap();
+    let geo_b = ctx.buffer_from("test.geo", geo).unwrap();
+    let grad_b = ctx.buffer_from("test.grad", &grad0).unwrap();
+    ctx.submit_and_wait(|cmd| {
+        tv.record(
+            cmd,
+            corners_b.address(),
+            geo_b.address(),
+            grad_b.address(),
+            voxels,
+            weight,
+        )
+    })
+    .unwrap();
+    let value = tv.read_value().unwrap();
+    let grad: Vec<f32> = ctx.download_all(&grad_b).unwrap();
+
+    let geo64: Vec<f64> = geo.iter().map(|&g| f64::from(g)).collect();
+    let l_ref = ref_tv_value(&layout.corners, &geo64);
+    let (g_ref, scale, adds) = ref_tv_grad(&layout.corners, &geo64);
+    let e_value = (value - l_ref).abs() / l_ref.max(f64::MIN_POSITIVE);
+    assert!(
+        e_value <= TV_VALUE_TOL,
+        "TV value {value} vs reference {l_ref} (rel {e_value:e})"
+    );
+    let w = f64::from(weight);
+    let mut e_grad = 0.0f64;
+    for i in 0..layout.points {
+        let expect = f64::from(grad0[i]) + w * g_ref[i];
+        if scale[i] == 0.0 || weight == 0.0 {
+            assert_eq!(grad[i].to_bits(), grad0[i].to_bits(), "point {i} untouched");
+            continue;
+        }
+        let s = f64::from(grad0[i]).abs() + w.abs() * scale[i];
+        let e = (f64::from(grad[i]) - expect).abs() / (grad_units(adds[i]) * s);
+        assert!(
+            e <= 1.0,
+            "point {i}: grad {} expected {expect} (start {}, rel {e:e})",
+            grad[i],
+            grad0[i]
+        );
+        e_grad = e_grad.max(e);
+    }
+    assert_eq!(tv.read_lost().unwrap(), 0, "CAS give-ups");
+    TvErrors {
+        value: e_value,
+        grad: e_grad,
+    }
+}
+
+fn tv_variants(ctx: &Context) -> Vec<Tv> {
+    let mut v = vec![Tv::new(ctx, false).unwrap()];
+    assert!(!v[0].uses_float_atomics());
+    let native = Tv::new(ctx, true).unwrap();
+    assert_eq!(native.uses_float_atomics(), ctx.info().float_atomic_add);
+    if native.uses_float_atomics() {
+        v.push(native);
+    } else {
+        eprintln!("device lacks float atomic add: only the CAS variant is tested");
+    }
+    v
+}
+
+#[test]
+fn tv_matches_f64_reference() {
+    let ctx = context();
+    let mut rng = Rng(0x7f);
+    for mut tv in tv_variants(&ctx) {
+        let mut worst = (0.0f64, 0.0f64);
+        // Partial last workgroup (41³ = 68 921), a tiny one, and heavy sharing.
+        let layouts = [
+            dense_layout(&mut rng, 41, 123),
+            dense_layout(&mut rng, 2, 5),
+            pool_layout(&mut rng, 30_000, 2000),
+            pool_layout(&mut rng, 5_000, 16),
+            pool_layout(&mut rng, 20_000, 2), // extreme contention: 2 words
+        ];
+        for (li, layout) in layouts.iter().enumerate() {
+            for weight in [1.0f32, 0.37, -2.5] {
+                let geo = random_geo(&mut rng, layout.points);
+                let e = check_tv(&ctx, &mut tv, layout, &geo, weight, &mut rng);
+                worst = (worst.0.max(e.value), worst.1.max(e.grad));
+                println!(
+                    "tv (float atomics {}): layout {li} weight {weight}: rel error value {:.3e}, grad {:.3e} of the bound",
+                    tv.uses_float_atomics(),
+                    e.value,
+                    e.grad
+                );
+            }
+        }
+        println!(
+            "tv (float atomics {}): max rel error value {:.3e}, grad {:.3e} of the bound",
+            tv.uses_float_atomics(),
+            worst.0,
+            worst.1
+        );
+    }
+    finish(&ctx);
+}
+
+#[test]
+fn tv_weight_zero_and_empty() {
+    let ctx = context();
+    let mut rng = Rng(3);
+    for mut tv in tv_variants(&ctx) {
+        let layout = dense_layout(&mut rng, 9, 0);
+        let geo = random_geo(&mut rng, layout.points);
+        // Weight 0: value computed, gradient untouched (checked in check_tv).
+        check_tv(&ctx, &mut tv, &layout, &geo, 0.0, &mut rng);
+        // No voxels: nothing dispatched, value 0.
+        let g = ctx.buffer_from("g", &[1.5f32; 10]).unwrap();
+        let c = ctx.buffer_from("c", &[0u32; 8]).unwrap();
+        let geo_b = ctx.buffer_from("geo", &[1.0f32; 10]).unwrap();
+        ctx.submit_and_wait(|cmd| {
+            tv.record(cmd, c.address(), geo_b.address(), g.address(), 0, 1.0)
+        })
+        .unwrap();
+        assert_eq!(tv.read_value().unwrap(), 0.0);
+        assert_eq!(ctx.download_all::<f32>(&g).unwrap(), vec![1.5f32; 10]);
+    }
+    finish(&ctx);
+}
+
+/// Two records in one command buffer, the second growing the partials buffer: both
+/// gradients are added, the value is the second's.
+#[test]
+fn tv_accumulates_and_grows() {
+    let ctx = context();
+    let mut rng = Rng(11);
+    for mut tv in tv_variants(&ctx) {
+        let small = dense_layout(&mut rng, 3, 0);
+        let big = dense_layout(&mut rng, 30, 0);
+        let points = big.points;
+        assert!(small.points <= points);
+        let geo = random_geo(&mut rng, points);
+        let geo64: Vec<f64> = geo.iter().map(|&g| f64::from(g)).collect();
+        let cs = ctx.buffer_from("cs", &small.corners).unwrap();
+        let cb = ctx.buffer_from("cb", &big.corners).unwrap();
+        let geo_b = ctx.buffer_from("geo", &geo).unwrap();
+        let grad_b = ctx.buffer_from("grad", &vec![0.0f32; points]).unwrap();
+        let (ws, wb) = (0.5f32, 2.0f32);
+        ctx.submit_and_wait(|cmd| {
+            tv.record(cmd, cs.address(), geo_b.address(), grad_b.address(), 27, ws)?;
+            tv.record(
+                cmd,
+                cb.address(),
+                geo_b.address(),
+                grad_b.address(),
+                27_000,
+                wb,
+            )
+        })
+        .unwrap();
+        let l_ref = ref_tv_value(&big.corners, &geo64);
+        let value = tv.read_value().unwrap();
+        assert!(
+            (value - l_ref).abs() <= TV_VALUE_TOL * l_ref,
+            "{value} vs {l_ref}"
+        );
+        let (gs, ss, as_) = ref_tv_grad(&small.corners, &geo64);
+        let (gb, sb, ab) = ref_tv_grad(&big.corners, &geo64);
+        let grad: Vec<f32> = ctx.download_all(&grad_b).unwrap();
+        for i in 0..points {
+            let expect = f64::from(ws) * gs[i] + f64::from(wb) * gb[i];
+            let scale = f64::from(ws) * ss[i] + f64::from(wb) * sb[i];
+            assert!(
+                (f64::from(grad[i]) - expect).abs() <= grad_units(as_[i] + ab[i]) * scale,
+                "point {i}: {} vs {expect}",
+                grad[i]
+            );
+        }
+        assert_eq!(tv.read_lost().unwrap(), 0);
+    }
+    finish(&ctx);
+}
+
+/// The reference gradient against central differences of the reference value (L is
+/// quadratic in geo, so central differences are exact up to the rounding of L:
+/// |fd − grad| ≤ 1e-9·max(|grad|, 1) + 16·ε₆₄·L/h).
+#[test]
+fn tv_reference_gradient_matches_finite_differences() {
+    let mut rng = Rng(5);
+    for layout in [dense_layout(&mut rng, 3, 2), pool_layout(&mut rng, 40, 30)] {
+        let geo: Vec<f64> = random_geo(&mut rng, layout.points)
+            .iter()
+            .map(|&g| f64::from(g))
+            .collect();
+        let (grad, _, _) = ref_tv_grad(&layout.corners, &geo);
+        let l = ref_tv_value(&layout.corners, &geo);
+        let mut worst = 0.0f64;
+        for i in 0..layout.points {
+            let h = 1e-3 * geo[i].abs().max(1.0);
+            let mut gp = geo.clone();
+            gp[i] += h;
+            let mut gm = geo.clone();
+            gm[i] -= h;
+            let fd = (ref_tv_value(&layout.corners, &gp) - ref_tv_value(&layout.corners, &gm))
+                / (gp[i] - gm[i]);
+            let tol = 1e-9 * grad[i].abs().max(1.0) + 16.0 * f64::EPSILON * l / h;
+            let e = (fd - grad[i]).abs() / tol;
+            assert!(e <= 1.0, "point {i}: fd {fd} vs analytic {}", grad[i]);
+            worst = worst.max(e);
+        }
+        println!("tv reference vs central differences: max error / tolerance {worst:.3e}");
+    }
+}
