@@ -63,6 +63,27 @@ pub enum BenchCmd {
         #[arg(long)]
         json: bool,
     },
+    /// Training iterations on a dataset: median ms per iteration and per stage.
+    Train {
+        /// Blender-format dataset (its train split).
+        data: std::path::PathBuf,
+        #[arg(long, default_value_t = 1.0)]
+        downscale: f64,
+        /// Configuration preset (see `svraster train`).
+        #[arg(long, default_value = "synthetic")]
+        preset: String,
+        /// Config overrides, as for `svraster train`.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Timed iterations (after the warm-up).
+        #[arg(long, default_value_t = 20)]
+        iters: u32,
+        /// Untimed warm-up iterations.
+        #[arg(long, default_value_t = 3)]
+        warmup: u32,
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 fn parse_bits(s: &str) -> Result<Range<u32>, String> {
@@ -101,6 +122,15 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             },
             json,
         ),
+        BenchCmd::Train {
+            data,
+            downscale,
+            preset,
+            set,
+            iters,
+            warmup,
+            json,
+        } => bench_train(ctx, &data, downscale, &preset, &set, iters, warmup, json),
         BenchCmd::Sort {
             n,
             bits,
@@ -385,6 +415,125 @@ fn bench_render(
             median(&dup),
             median(&per_tile)
         );
+    }
+    Ok(())
+}
+
+/// Stage groups of a training iteration: the frame's stages mapped to what the issue
+/// asks for (preprocess, sort, forward), then losses, backward, optimizer.
+fn stage_group(name: &str) -> &'static str {
+    match name {
+        "preprocess" => "preprocess",
+        "scan" | "emit_keys" | "sort" | "tile_ranges" => "sort",
+        "composite" | "finalize" => "forward",
+        "losses" => "losses",
+        "backward" => "backward",
+        "optimizer" => "optimizer",
+        _ => "other",
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn bench_train(
+    ctx: &Context,
+    data: &std::path::Path,
+    downscale: f64,
+    preset: &str,
+    set: &[String],
+    iters: u32,
+    warmup: u32,
+    json: bool,
+) -> anyhow::Result<()> {
+    use svraster::train::config::TrainConfig;
+    use svraster::train::trainer::Trainer;
+    if iters < 3 {
+        bail!("--iters must be at least 3");
+    }
+    let mut cfg = TrainConfig::preset(preset)?;
+    for kv in set {
+        cfg.set(kv)?;
+    }
+    let train = svraster::data::load_split(data, "train", downscale, cfg.background)?;
+    cfg.background = train.background;
+    // Time the full-model regime: SH at its final degree, supersampling on, all losses.
+    cfg.iters = 1;
+    cfg.sh_every = 0.0;
+    cfg.ss_from = 0.0;
+    cfg.dist_from = 0.0;
+    cfg.tv_until = 1.0;
+    cfg.validate()?;
+    let mut t = Trainer::new(ctx, cfg.clone(), &train, None)?;
+    t.enable_timing()?;
+    let mut groups: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
+    let mut total = Vec::new();
+    let mut wall = Vec::new();
+    for i in 0..warmup + iters {
+        let w = Instant::now();
+        t.step(false)?;
+        let wall_ms = w.elapsed().as_secs_f64() * 1e3;
+        if i < warmup {
+            continue;
+        }
+        let mut sums: BTreeMap<&'static str, f64> = BTreeMap::new();
+        for (name, ms) in t.stage_times() {
+            *sums.entry(stage_group(name)).or_default() += ms;
+        }
+        total.push(sums.values().sum::<f64>());
+        for (k, v) in sums {
+            groups.entry(k).or_default().push(v);
+        }
+        wall.push(wall_ms);
+    }
+    t.check_finite()?;
+    let med: Vec<(&str, f64)> = [
+        "preprocess",
+        "sort",
+        "forward",
+        "losses",
+        "backward",
+        "optimizer",
+        "other",
+    ]
+    .iter()
+    .filter_map(|&k| groups.get(k).map(|v| (k, median(v))))
+    .collect();
+    if json {
+        let obj = serde_json::json!({
+            "device": ctx.info().name,
+            "data": data,
+            "downscale": downscale,
+            "image": [train.width, train.height],
+            "voxels": t.voxels(),
+            "grid_level": cfg.grid_level,
+            "ss": cfg.ss,
+            "sh_degree": cfg.sh_degree,
+            "float_atomics": t.float_atomics(),
+            "iters": iters,
+            "median_ms_per_iter": median(&total),
+            "wall_median_ms_per_iter": median(&wall),
+            "stages_median_ms": med.iter().map(|(k, v)| (k.to_string(), *v)).collect::<BTreeMap<_, _>>(),
+        });
+        println!("{obj}");
+    } else {
+        println!(
+            "train bench on {}: {} voxels (level {}), {}×{} images, ss up to {}, SH {}, {} timed iterations",
+            ctx.info().name,
+            t.voxels(),
+            cfg.grid_level,
+            train.width,
+            train.height,
+            cfg.ss,
+            cfg.sh_degree,
+            iters
+        );
+        println!(
+            "median {:.1} ms per iteration on the GPU timeline (wall {:.1} ms)",
+            median(&total),
+            median(&wall)
+        );
+        for (k, v) in med {
+            println!("  {k:<11} {v:>9.2} ms");
+        }
     }
     Ok(())
 }

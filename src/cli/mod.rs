@@ -3,6 +3,7 @@
 mod bench;
 mod info;
 mod render;
+mod train;
 
 use std::path::PathBuf;
 
@@ -35,21 +36,68 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Generate the built-in procedural scene (Blender-format dataset), build a
-    /// checkpoint from it and render its test views.
+    /// Generate the built-in procedural scene (Blender-format dataset), train on it,
+    /// evaluate the test views and render them (rgb, depth, normal PNGs).
     Demo {
-        /// Output directory (dataset in OUT/data, model, renders in OUT/renders).
+        /// Output directory: dataset in OUT/data, the run in OUT/run, renders in OUT/renders.
         #[arg(long, default_value = "demo_out")]
         out: PathBuf,
         /// Image edge in pixels.
-        #[arg(long, default_value_t = 200)]
+        #[arg(long, default_value_t = 80)]
         size: u32,
-        /// Finest octree level of the voxelized scene (7 ≈ 66k voxels, 9 ≈ 1.1M).
-        #[arg(long, default_value_t = 7)]
+        /// Training iterations.
+        #[arg(long, default_value_t = 300)]
+        iters: u32,
+        /// Level of the uniform voxel grid (5: 32 768 voxels).
+        #[arg(long, default_value_t = 5)]
         level: u32,
-        /// Seed of the training camera positions.
+        /// Seed of the camera positions and of training.
         #[arg(long, default_value_t = 0)]
         seed: u64,
+    },
+    /// Train a model on the train split of a Blender-format dataset.
+    Train {
+        /// Dataset directory (transforms_train.json + images).
+        data: PathBuf,
+        /// Run directory: config.json, stats.jsonl, model.safetensors, optimizer.bin.
+        #[arg(long)]
+        out: PathBuf,
+        /// Iterations (default 20 000; every milestone scales with it).
+        #[arg(long)]
+        iters: Option<u32>,
+        /// Downscale factor of the images (area averaging).
+        #[arg(long, default_value_t = 1.0)]
+        downscale: f64,
+        /// Configuration preset: synthetic (default) or quick.
+        #[arg(long, default_value = "synthetic")]
+        preset: String,
+        /// Random seed.
+        #[arg(long)]
+        seed: Option<u64>,
+        /// Override a config value, e.g. --set grid_level=6 --set lambda_ssim=0 (keys as
+        /// in RUN/config.json).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        /// Continue the run in --out from its last checkpoint.
+        #[arg(long)]
+        resume: bool,
+    },
+    /// Evaluate a model on a dataset split: mean PSNR and SSIM, frame time.
+    Eval {
+        /// A .safetensors checkpoint, or a run directory holding model.safetensors.
+        model: PathBuf,
+        #[arg(long)]
+        data: PathBuf,
+        #[arg(long, default_value = "test", value_parser = ["train", "val", "test"])]
+        split: String,
+        #[arg(long, default_value_t = 1.0)]
+        downscale: f64,
+        /// Print one JSON object (psnr, ssim, views, ms_per_frame, per_view …) on stdout.
+        #[arg(long)]
+        json: bool,
+        /// Supersampling factor of the renders.
+        #[arg(long, default_value_t = 1.0)]
+        ss: f32,
     },
     /// Render every frame of a dataset split with a model.
     Render {
@@ -99,16 +147,65 @@ pub fn run() -> anyhow::Result<()> {
         Command::Demo {
             out,
             size,
+            iters,
             level,
             seed,
-        } => render::run_demo(
+        } => train::run_demo(
             &ctx,
-            render::DemoArgs {
+            train::DemoArgs {
                 out,
                 size,
+                iters,
                 level,
                 seed,
             },
+        )?,
+        Command::Train {
+            data,
+            out,
+            iters,
+            downscale,
+            preset,
+            seed,
+            set,
+            resume,
+        } => {
+            let s = train::run_train(
+                &ctx,
+                &train::TrainArgs {
+                    data,
+                    out,
+                    iters,
+                    downscale,
+                    preset,
+                    seed,
+                    set,
+                    resume,
+                },
+            )?;
+            if s.interrupted {
+                ctx.check_validation()?;
+                std::process::exit(130);
+            }
+        }
+        Command::Eval {
+            model,
+            data,
+            split,
+            downscale,
+            json,
+            ss,
+        } => train::run_eval(
+            &ctx,
+            &model,
+            &data,
+            &split,
+            downscale,
+            &svraster::raster::RenderOptions {
+                samples: 1,
+                supersample: ss,
+            },
+            json,
         )?,
         Command::Render {
             model,

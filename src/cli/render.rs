@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context as _};
-use svraster::data::{self, demo, image, Camera};
+use svraster::data::{self, image, Camera};
 use svraster::gpu::Context;
 use svraster::raster::{Image, RenderOptions, Renderer, SceneGpu};
 use svraster::scene::{checkpoint, Scene};
@@ -178,68 +178,6 @@ pub fn run_render(ctx: &Context, a: RenderArgs) -> anyhow::Result<()> {
         "rendered split `{}` to {}: mean PSNR {psnr:.2} dB against the photos, {ms:.1} ms per frame (wall, incl. read-back and PNG)",
         a.split,
         a.out.display()
-    );
-    Ok(())
-}
-
-pub struct DemoArgs {
-    pub out: PathBuf,
-    pub size: u32,
-    pub level: u32,
-    pub seed: u64,
-}
-
-/// Generates the procedural dataset, builds a checkpoint from the analytic scene (until
-/// training lands), and renders the test views.
-pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
-    let data_dir = a.out.join("data");
-    let opts = demo::DemoOptions {
-        width: a.size,
-        height: a.size,
-        seed: a.seed,
-        ..Default::default()
-    };
-    let t = Instant::now();
-    eprintln!(
-        "generating the demo dataset ({}×{}, {} train / {} val / {} test views) in {} …",
-        opts.width,
-        opts.height,
-        opts.train,
-        opts.val,
-        opts.test,
-        data_dir.display()
-    );
-    demo::write_dataset(&data_dir, &opts)?;
-    eprintln!("  done in {:.1} s", t.elapsed().as_secs_f64());
-    let t = Instant::now();
-    let scene = demo::voxelize(a.level, 0)?;
-    let model = a.out.join("model.safetensors");
-    checkpoint::save(&scene, &model)?;
-    eprintln!(
-        "voxelized the analytic scene down to level {}: {} voxels, {} grid points → {} ({:.1} s)",
-        a.level,
-        scene.num_voxels(),
-        scene.num_grid_points(),
-        model.display(),
-        t.elapsed().as_secs_f64()
-    );
-    let renders = a.out.join("renders");
-    let (psnr, ms) = render_split(
-        ctx,
-        &RenderArgs {
-            model: model.clone(),
-            data: data_dir.clone(),
-            split: "test".into(),
-            downscale: 1.0,
-            out: renders.clone(),
-            depth: true,
-            normal: true,
-            opts: RenderOptions::default(),
-        },
-    )?;
-    println!(
-        "demo: test views rendered to {} (rgb, depth, normal PNGs); mean PSNR {psnr:.2} dB against the ground truth; {ms:.1} ms per frame",
-        renders.display()
     );
     Ok(())
 }

@@ -1,0 +1,602 @@
+//! The training loop (paper §3.2; DESIGN §4): one random training view per iteration,
+//! forward → losses → backward → Adam, on a fixed uniform voxel grid.
+//!
+//! An iteration is two submissions: the frame (which may grow its buffers and re-render,
+//! so its completeness is known before any gradient is taken) and everything after it.
+
+use ash::vk;
+use rand::{Rng, SeedableRng};
+
+use super::backward::{Backward, EntryLosses, Gradients};
+use super::config::{Schedule, TrainConfig};
+use super::optim::{Adam, AdamConfig, Tv};
+use super::ssim::Ssim;
+use crate::data::blender::Dataset;
+use crate::data::Camera;
+use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
+use crate::push_constants;
+use crate::raster::{RenderOptions, Renderer, SceneGpu};
+use crate::scene::{octpath_from_ijk, Scene};
+use crate::{Error, Result};
+
+/// Loss values of one iteration (read back only on logged iterations).
+#[derive(Clone, Copy, Debug, Default, serde::Serialize)]
+pub struct StepLosses {
+    /// Total weighted loss.
+    pub loss: f64,
+    pub mse: f64,
+    pub psnr: f64,
+    pub ssim: f64,
+    pub t_concentration: f64,
+    pub distortion: f64,
+    pub tv: f64,
+}
+
+/// What one iteration did.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct StepInfo {
+    /// Iteration just completed (1-based).
+    pub iter: u32,
+    pub view: usize,
+    pub sh_degree: u32,
+    pub supersample: f32,
+    pub entries: u64,
+    /// Loss values when this iteration was asked to measure them.
+    pub losses: Option<StepLosses>,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct LossPush {
+    frame: u64,
+    out_img: u64,
+    gt: u64,
+    dout: u64,
+    partials: u64,
+    w_mse: f32,
+    w_t: f32,
+    nout: u32,
+    nrender: u32,
+}
+push_constants!(LossPush, kernels::TRAIN_LOSS);
+
+/// Adam moments of one parameter group.
+struct Moments {
+    m: Buffer,
+    v: Buffer,
+}
+
+impl Moments {
+    fn new(ctx: &Context, name: &str, count: u64) -> Result<Moments> {
+        let bytes = count.max(1) * 4;
+        let m = ctx.buffer(&format!("{name}.adam-m"), bytes, Memory::Device)?;
+        let v = ctx.buffer(&format!("{name}.adam-v"), bytes, Memory::Device)?;
+        ctx.submit_and_wait(|cmd| {
+            recorder::fill(ctx, cmd, &m, 0, vk::WHOLE_SIZE, 0);
+            recorder::fill(ctx, cmd, &v, 0, vk::WHOLE_SIZE, 0);
+            Ok(())
+        })?;
+        Ok(Moments { m, v })
+    }
+}
+
+/// A uniform grid of `8^level` voxels filling the box (fixed topology).
+pub fn uniform_grid(cfg: &TrainConfig) -> Result<Scene> {
+    let l = cfg.grid_level;
+    let n = 1u32 << l;
+    let mut paths = Vec::with_capacity((n as usize).pow(3));
+    for i in 0..n {
+        for j in 0..n {
+            for k in 0..n {
+                paths.push(octpath_from_ijk([i, j, k], l));
+            }
+        }
+    }
+    paths.sort_unstable();
+    let levels = vec![l as u8; paths.len()];
+    let mut scene = Scene::from_voxels(
+        cfg.center,
+        cfg.extent,
+        cfg.sh_degree,
+        paths,
+        levels,
+        cfg.geo_init,
+    )?;
+    scene.background = cfg.background;
+    let dc = (cfg.sh0_init - 0.5) / 0.282_094_8;
+    scene.sh0.iter_mut().for_each(|c| *c = [dc; 3]);
+    Ok(scene)
+}
+
+/// Per-stage timestamps of the last iteration (ms), when enabled.
+pub type StageTimes = Vec<(String, f64)>;
+
+/// The trainer: scene and optimiser state on the device plus the training views.
+pub struct Trainer {
+    ctx: Context,
+    cfg: TrainConfig,
+    schedule: Schedule,
+    host: Scene,
+    scene: SceneGpu,
+    grads: Gradients,
+    mom: [Moments; 3],
+    renderer: Renderer,
+    backward: Backward,
+    ssim: Ssim,
+    adam: Adam,
+    tv: Tv,
+    loss_k: Kernel,
+    partials: Option<Buffer>,
+    gt: Buffer,
+    cams: Vec<Camera>,
+    width: u32,
+    height: u32,
+    rng: rand_pcg::Pcg64,
+    order: Vec<usize>,
+    iter: u32,
+    timing: Option<(Timestamps, Timestamps)>,
+    last_times: StageTimes,
+}
+
+impl Trainer {
+    /// Sets up training on `train` from `init` (or a fresh uniform grid).
+    pub fn new(
+        ctx: &Context,
+        cfg: TrainConfig,
+        train: &Dataset,
+        init: Option<Scene>,
+    ) -> Result<Trainer> {
+        cfg.validate()?;
+        if train.frames.is_empty() {
+            return Err(Error::Invalid(format!(
+                "the {} split has no frames to train on",
+                train.split
+            )));
+        }
+        let host = match init {
+            Some(s) => s,
+            None => uniform_grid(&cfg)?,
+        };
+        host.validate()?;
+        let mut scene = SceneGpu::upload(ctx, &host)?;
+        scene.sh_degree = 0;
+        let grads = Gradients::new(ctx, &scene)?;
+        let n = scene.voxels as u64;
+        let mom = [
+            Moments::new(ctx, "geo", scene.grid_points as u64)?,
+            Moments::new(ctx, "sh0", n * 3)?,
+            Moments::new(ctx, "shs", n * 3 * scene.shs_per_voxel as u64)?,
+        ];
+        let (w, h) = (train.width, train.height);
+        let np = (w * h) as usize;
+        let mut planar = vec![0f32; train.frames.len() * 3 * np];
+        for (i, f) in train.frames.iter().enumerate() {
+            if f.rgb.len() != np {
+                return Err(Error::Invalid(format!(
+                    "training image {} has {} pixels, expected {w}×{h}",
+                    f.name,
+                    f.rgb.len()
+                )));
+            }
+            for (p, c) in f.rgb.iter().enumerate() {
+                for ch in 0..3 {
+                    planar[(i * 3 + ch) * np + p] = c[ch];
+                }
+            }
+        }
+        let gt = ctx.buffer_from("train.ground-truth", &planar)?;
+        let float_atomics = std::env::var("SVRASTER_NO_FLOAT_ATOMICS").is_err();
+        let schedule = cfg.schedule();
+        Ok(Trainer {
+            ctx: ctx.clone(),
+            rng: rand_pcg::Pcg64::seed_from_u64(cfg.seed),
+            cfg,
+            schedule,
+            host,
+            scene,
+            grads,
+            mom,
+            renderer: Renderer::new(ctx)?,
+            backward: Backward::new(ctx, float_atomics)?,
+            ssim: Ssim::new(ctx)?,
+            adam: Adam::new(ctx)?,
+            tv: Tv::new(ctx, float_atomics)?,
+            loss_k: Kernel::new(ctx, &kernels::TRAIN_LOSS)?,
+            partials: None,
+            gt,
+            cams: train.cameras(),
+            width: w,
+            height: h,
+            order: Vec::new(),
+            iter: 0,
+            timing: None,
+            last_times: Vec::new(),
+        })
+    }
+
+    pub fn config(&self) -> &TrainConfig {
+        &self.cfg
+    }
+    pub fn schedule(&self) -> &Schedule {
+        &self.schedule
+    }
+    /// Iterations completed.
+    pub fn iter(&self) -> u32 {
+        self.iter
+    }
+    pub fn voxels(&self) -> u32 {
+        self.scene.voxels
+    }
+    /// Whether the backward uses native float atomics.
+    pub fn float_atomics(&self) -> bool {
+        self.backward.float_atomics()
+    }
+
+    /// Records per-stage GPU timestamps from now on (see [`Trainer::stage_times`]).
+    pub fn enable_timing(&mut self) -> Result<()> {
+        if self.timing.is_none() {
+            self.timing = Some((
+                Timestamps::new(&self.ctx, 16)?,
+                Timestamps::new(&self.ctx, 16)?,
+            ));
+        }
+        Ok(())
+    }
+
+    /// Stage times (ms) of the last iteration: the frame's stages, then losses,
+    /// backward, optimizer.
+    pub fn stage_times(&self) -> &StageTimes {
+        &self.last_times
+    }
+
+    /// Fast-forwards the iteration counter and random state to `iter` (resume); the
+    /// scene and optimiser state must be restored separately.
+    pub fn skip_to(&mut self, iter: u32) {
+        while self.iter < iter {
+            self.next_view();
+            self.draw_ss(self.iter);
+            self.iter += 1;
+        }
+    }
+
+    fn next_view(&mut self) -> usize {
+        if self.order.is_empty() {
+            self.order = (0..self.cams.len()).collect();
+            // Fisher–Yates with our seeded generator (reproducible).
+            for i in (1..self.order.len()).rev() {
+                let j = self.rng.gen_range(0..=i);
+                self.order.swap(i, j);
+            }
+        }
+        self.order.pop().expect("non-empty")
+    }
+
+    fn draw_ss(&mut self, it: u32) -> f32 {
+        let u: f32 = self.rng.gen();
+        if it < self.schedule.ss_from || self.cfg.ss <= 1.0 {
+            1.0
+        } else {
+            1.0 + u * (self.cfg.ss - 1.0)
+        }
+    }
+
+    /// Runs one iteration; with `measure`, reads back the loss values.
+    pub fn step(&mut self, measure: bool) -> Result<StepInfo> {
+        let it = self.iter;
+        let view = self.next_view();
+        let ss = self.draw_ss(it);
+        let cfg = self.cfg.clone();
+        let degree = self.schedule.sh_degree(it).min(cfg.sh_degree);
+        self.scene.sh_degree = degree;
+        let cam = self.cams[view].clone();
+        let opts = RenderOptions {
+            samples: cfg.samples,
+            supersample: ss,
+        };
+        let mut timing = self.timing.take();
+        let stats = self.renderer.render_to_device(
+            &self.scene,
+            &cam,
+            &opts,
+            timing.as_mut().map(|t| &mut t.0),
+        );
+        let stats = match stats {
+            Ok(s) => s,
+            Err(e) => {
+                self.timing = timing;
+                return Err(e);
+            }
+        };
+        let frame = self.renderer.last_frame()?;
+        self.backward.prepare(&frame, self.scene.voxels)?;
+        let nout = frame.out_width * frame.out_height;
+        let nrender = frame.render_width * frame.render_height;
+        let groups = nout.max(nrender).div_ceil(256);
+        let need = groups as u64 * 3 * 4;
+        if !self.partials.as_ref().is_some_and(|b| b.size() >= need) {
+            self.partials = None;
+            self.partials = Some(self.ctx.buffer(
+                "train.partials",
+                need + need / 4,
+                Memory::Device,
+            )?);
+        }
+        self.ssim.prepare(frame.out_width, frame.out_height)?;
+        let gt_addr = self.gt.address() + (view as u64 * 3 * nout as u64) * 4;
+        let out_addr = self.renderer.output_address()?;
+        let dout_addr = self.backward.dout()?.address();
+        let partials_addr = self.partials.as_ref().expect("allocated").address();
+
+        let lr_scale = if it >= self.schedule.lr_decay_at {
+            cfg.lr_decay
+        } else {
+            1.0
+        };
+        let lambda_dist = if it >= self.schedule.dist_from {
+            cfg.lambda_dist
+        } else {
+            0.0
+        };
+        let lambda_tv = if it < self.schedule.tv_until {
+            cfg.lambda_tv
+        } else {
+            0.0
+        };
+        let step = it + 1;
+        let ctx = self.ctx.clone();
+        let max_x = ctx.info().max_compute_work_group_count[0];
+        let res = ctx.submit_and_wait(|cmd| {
+            if let Some(t) = timing.as_mut() {
+                t.1.begin(cmd);
+            }
+            self.loss_k.dispatch(
+                cmd,
+                &LossPush {
+                    frame: frame.params,
+                    out_img: out_addr,
+                    gt: gt_addr,
+                    dout: dout_addr,
+                    partials: partials_addr,
+                    w_mse: cfg.lambda_mse / (3.0 * nout as f32),
+                    w_t: cfg.lambda_t / nout as f32,
+                    nout,
+                    nrender,
+                },
+                crate::gpu::grid_2d(groups, max_x),
+            );
+            recorder::barrier(&ctx, cmd);
+            if cfg.lambda_ssim > 0.0 {
+                self.ssim.record(
+                    cmd,
+                    out_addr,
+                    gt_addr,
+                    dout_addr,
+                    -cfg.lambda_ssim,
+                    frame.out_width,
+                    frame.out_height,
+                )?;
+            }
+            if let Some(t) = timing.as_mut() {
+                t.1.mark(cmd, "losses");
+            }
+            self.backward.record(
+                cmd,
+                &frame,
+                &stats,
+                &self.scene,
+                cfg.samples,
+                &self.grads,
+                &EntryLosses {
+                    lambda_dist: lambda_dist / nrender as f32,
+                    lambda_r: cfg.lambda_r / nrender as f32,
+                },
+            )?;
+            if lambda_tv > 0.0 {
+                self.tv.record(
+                    cmd,
+                    self.scene.corners.address(),
+                    self.scene.geo.address(),
+                    self.grads.geo.address(),
+                    self.scene.voxels,
+                    lambda_tv,
+                )?;
+                recorder::barrier(&ctx, cmd);
+            }
+            if let Some(t) = timing.as_mut() {
+                t.1.mark(cmd, "backward");
+            }
+            let groups = [
+                (
+                    &self.scene.geo,
+                    &self.grads.geo,
+                    &self.mom[0],
+                    self.scene.grid_points as u64,
+                    cfg.lr_geo,
+                ),
+                (
+                    &self.scene.sh0,
+                    &self.grads.sh0,
+                    &self.mom[1],
+                    self.scene.voxels as u64 * 3,
+                    cfg.lr_sh0,
+                ),
+                (
+                    &self.scene.shs,
+                    &self.grads.shs,
+                    &self.mom[2],
+                    self.scene.voxels as u64 * 3 * self.scene.shs_per_voxel as u64,
+                    cfg.lr_shs,
+                ),
+            ];
+            for (p, g, m, count, lr) in groups {
+                if count == 0 {
+                    continue;
+                }
+                self.adam.record(
+                    cmd,
+                    p.address(),
+                    g.address(),
+                    m.m.address(),
+                    m.v.address(),
+                    count as u32,
+                    step,
+                    &AdamConfig {
+                        lr: lr * lr_scale,
+                        beta1: cfg.beta1,
+                        beta2: cfg.beta2,
+                        eps: cfg.eps,
+                    },
+                );
+            }
+            recorder::barrier(&ctx, cmd);
+            if let Some(t) = timing.as_mut() {
+                t.1.mark(cmd, "optimizer");
+            }
+            Ok(())
+        });
+        if let Some(t) = timing.as_ref() {
+            let mut all = t.0.stages()?;
+            all.extend(t.1.stages()?);
+            self.last_times = all;
+        }
+        self.timing = timing;
+        res?;
+        if self.backward.read_lost()? != 0 {
+            return Err(Error::Gpu(
+                "compare-and-swap float adds gave up under contention: gradients are incomplete"
+                    .into(),
+            ));
+        }
+        self.iter += 1;
+        let losses = if measure {
+            Some(self.read_losses(groups, nout, nrender, lambda_dist, lambda_tv)?)
+        } else {
+            None
+        };
+        Ok(StepInfo {
+            iter: self.iter,
+            view,
+            sh_degree: degree,
+            supersample: ss,
+            entries: stats.entries,
+            losses,
+        })
+    }
+
+    fn read_losses(
+        &self,
+        groups: u32,
+        nout: u32,
+        nrender: u32,
+        lambda_dist: f32,
+        lambda_tv: f32,
+    ) -> Result<StepLosses> {
+        let cfg = &self.cfg;
+        let parts: Vec<f32> = self.ctx.download(
+            self.partials.as_ref().expect("allocated"),
+            0,
+            groups as usize * 3,
+        )?;
+        let mut sums = [0f64; 3];
+        for g in parts.chunks_exact(3) {
+            for k in 0..3 {
+                sums[k] += g[k] as f64;
+            }
+        }
+        let mse = sums[0] / (3.0 * nout as f64);
+        let tconc = sums[1] / nout as f64;
+        let dist = sums[2] / nrender as f64;
+        let ssim = if cfg.lambda_ssim > 0.0 {
+            self.ssim.read_value()?
+        } else {
+            f64::NAN
+        };
+        let tv = if lambda_tv > 0.0 {
+            self.tv.read_value()?
+        } else {
+            0.0
+        };
+        let ssim_term = if ssim.is_finite() { 1.0 - ssim } else { 0.0 };
+        // The per-point RGB term is folded into the backward and not measured.
+        let loss = cfg.lambda_mse as f64 * mse
+            + cfg.lambda_ssim as f64 * ssim_term
+            + cfg.lambda_t as f64 * tconc
+            + lambda_dist as f64 * dist
+            + lambda_tv as f64 * tv;
+        Ok(StepLosses {
+            loss,
+            mse,
+            psnr: -10.0 * mse.max(1e-20).log10(),
+            ssim,
+            t_concentration: tconc,
+            distortion: dist,
+            tv,
+        })
+    }
+
+    /// Whether a non-finite gradient or parameter appeared since the last check.
+    pub fn check_finite(&self) -> Result<()> {
+        if self.adam.read_nonfinite()? {
+            return Err(Error::Invalid(format!(
+                "a NaN or infinite value appeared in the gradients or parameters by \
+                 iteration {}; the run stopped without saving it. Lower the learning rates \
+                 (e.g. --set lr_geo=0.01) or resume from the last checkpoint",
+                self.iter
+            )));
+        }
+        Ok(())
+    }
+
+    /// The current model (downloads the parameters).
+    pub fn scene(&mut self) -> Result<Scene> {
+        self.scene.download_params(&self.ctx, &mut self.host)?;
+        Ok(self.host.clone())
+    }
+
+    /// Adam moments and iteration, for resuming: (geo m, geo v, sh0 m, sh0 v, shs m, shs v).
+    pub fn optimizer_state(&self) -> Result<Vec<Vec<f32>>> {
+        let counts = self.group_counts();
+        let mut out = Vec::new();
+        for (m, &c) in self.mom.iter().zip(&counts) {
+            for b in [&m.m, &m.v] {
+                out.push(if c == 0 {
+                    Vec::new()
+                } else {
+                    self.ctx.download(b, 0, c)?
+                });
+            }
+        }
+        Ok(out)
+    }
+
+    /// Restores Adam moments saved by [`Trainer::optimizer_state`].
+    pub fn set_optimizer_state(&mut self, state: &[Vec<f32>]) -> Result<()> {
+        let counts = self.group_counts();
+        if state.len() != 6 || (0..6).any(|i| state[i].len() != counts[i / 2]) {
+            return Err(Error::Invalid(
+                "optimizer state does not match the model's parameter counts".into(),
+            ));
+        }
+        for (i, m) in self.mom.iter().enumerate() {
+            if counts[i] > 0 {
+                self.ctx.upload(&m.m, 0, &state[2 * i])?;
+                self.ctx.upload(&m.v, 0, &state[2 * i + 1])?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Element counts of the parameter groups (geo, sh0, shs).
+    pub fn group_counts(&self) -> [usize; 3] {
+        [
+            self.scene.grid_points as usize,
+            self.scene.voxels as usize * 3,
+            self.scene.voxels as usize * 3 * self.scene.shs_per_voxel as usize,
+        ]
+    }
+
+    /// Training image size.
+    pub fn image_size(&self) -> (u32, u32) {
+        (self.width, self.height)
+    }
+}
