@@ -225,3 +225,33 @@ fn non_finite_values_stop_training_with_a_clear_error() {
     let _ = std::fs::remove_dir_all(&dir);
     finish(&ctx);
 }
+
+#[test]
+fn a_grid_too_large_for_the_device_is_refused_before_it_is_built() {
+    let ctx = context();
+    let dir = demo_data("big", 16);
+    let train = data::load_split(&dir, "train", 1.0, [1.0; 3]).unwrap();
+    let mut cfg = quick(5);
+    cfg.grid_level = 8; // 16.7 M voxels; degree-3 SH need 3.0 GB in one buffer
+    let need = (1u64 << 24) * 15 * 12;
+    let limit = ctx.info().max_memory_allocation_size;
+    if limit >= need {
+        println!("skipped: this device allocates {limit} bytes at once (≥ {need})");
+    } else {
+        let t0 = std::time::Instant::now();
+        let e = Trainer::new(&ctx, cfg, &train, None)
+            .err()
+            .unwrap()
+            .to_string();
+        assert!(
+            e.contains("grid_level=7") && e.contains("allocation limit"),
+            "{e}"
+        );
+        assert!(
+            t0.elapsed().as_secs() < 5,
+            "refused only after building the grid"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    finish(&ctx);
+}

@@ -108,6 +108,28 @@ pub fn uniform_grid(cfg: &TrainConfig) -> Result<Scene> {
     Ok(scene)
 }
 
+/// Refuses, before building it, a uniform grid whose largest per-voxel buffer (the
+/// higher-order SH coefficients, or the 8 corner indices at degree 0) exceeds the
+/// device's allocation limit.
+fn check_grid_fits(ctx: &Context, cfg: &TrainConfig) -> Result<()> {
+    let voxels = 1u64 << (3 * cfg.grid_level);
+    let per_voxel = (crate::scene::sh_coeffs(cfg.sh_degree) as u64 - 1) * 12;
+    let largest = voxels * per_voxel.max(32);
+    let limit = ctx.info().max_memory_allocation_size;
+    if limit > 0 && largest > limit {
+        return Err(Error::Capacity(format!(
+            "a level-{} uniform grid has {voxels} voxels: its largest buffer ({:.1} GiB) \
+             exceeds this device's {:.1} GiB allocation limit. Use --set grid_level={} (or \
+             a lower sh_degree)",
+            cfg.grid_level,
+            largest as f64 / (1u64 << 30) as f64,
+            limit as f64 / (1u64 << 30) as f64,
+            cfg.grid_level - 1
+        )));
+    }
+    Ok(())
+}
+
 /// Per-stage timestamps of the last iteration (ms), when enabled.
 pub type StageTimes = Vec<(String, f64)>;
 
@@ -155,7 +177,10 @@ impl Trainer {
         }
         let host = match init {
             Some(s) => s,
-            None => uniform_grid(&cfg)?,
+            None => {
+                check_grid_fits(ctx, &cfg)?;
+                uniform_grid(&cfg)?
+            }
         };
         host.validate()?;
         let mut scene = SceneGpu::upload(ctx, &host)?;
