@@ -11,14 +11,14 @@ VIEWS=${VIEWS:-3}
 RUNS=${RUNS:-3}
 mkdir -p "$WORK"
 for level in 7 9; do
-  if [ ! -f "$WORK/l$level/model.safetensors" ]; then
-    "$BIN" demo --out "$WORK/l$level" --size 400 --level "$level" >/dev/null
+  if [ ! -f "$WORK/l$level/run/model.safetensors" ]; then
+    "$BIN" demo --out "$WORK/l$level" --size 400 --level "$level" --voxelize >/dev/null
   fi
 done
 : > bench_render.jsonl
 for level in 7 9; do
   for ds in 2 1; do
-    "$BIN" bench render "$WORK/l$level" --data "$WORK/l$level/data" --downscale "$ds" \
+    "$BIN" bench render "$WORK/l$level/run" --data "$WORK/l$level/data" --downscale "$ds" \
       --views "$VIEWS" --runs "$RUNS" --json | tee -a bench_render.jsonl
   done
 done

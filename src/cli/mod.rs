@@ -54,6 +54,10 @@ enum Command {
         /// Seed of the camera positions and of training.
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Skip training: voxelize the analytic primitives adaptively down to --level
+        /// (a reference model for rendering benchmarks; tools/bench_render.sh).
+        #[arg(long)]
+        voxelize: bool,
     },
     /// Train a model on the train split of a Blender-format dataset.
     Train {
@@ -150,6 +154,7 @@ pub fn run() -> anyhow::Result<()> {
             iters,
             level,
             seed,
+            voxelize,
         } => train::run_demo(
             &ctx,
             train::DemoArgs {
@@ -158,6 +163,7 @@ pub fn run() -> anyhow::Result<()> {
                 iters,
                 level,
                 seed,
+                voxelize,
             },
         )?,
         Command::Train {

@@ -465,6 +465,7 @@ pub struct DemoArgs {
     pub iters: u32,
     pub level: u32,
     pub seed: u64,
+    pub voxelize: bool,
 }
 
 /// `svraster demo`: generate the procedural dataset, train on it, evaluate and render
@@ -495,19 +496,32 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
         std::fs::remove_dir_all(&run)
             .with_context(|| format!("cannot clear the previous demo run {}", run.display()))?;
     }
-    let summary = run_train(
-        ctx,
-        &TrainArgs {
-            data: data_dir.clone(),
-            out: run.clone(),
-            iters: Some(a.iters),
-            downscale: 1.0,
-            preset: "quick".into(),
-            seed: Some(a.seed),
-            set: vec![format!("grid_level={}", a.level)],
-            resume: false,
-        },
-    )?;
+    let summary = if a.voxelize {
+        let t = Instant::now();
+        let scene = demo::voxelize(a.level, 0)?;
+        std::fs::create_dir_all(&run)
+            .with_context(|| format!("cannot create {}", run.display()))?;
+        checkpoint::save(&scene, &run.join("model.safetensors"))?;
+        RunSummary {
+            iters: 0,
+            seconds: t.elapsed().as_secs_f64(),
+            interrupted: false,
+        }
+    } else {
+        run_train(
+            ctx,
+            &TrainArgs {
+                data: data_dir.clone(),
+                out: run.clone(),
+                iters: Some(a.iters),
+                downscale: 1.0,
+                preset: "quick".into(),
+                seed: Some(a.seed),
+                set: vec![format!("grid_level={}", a.level)],
+                resume: false,
+            },
+        )?
+    };
     if summary.interrupted {
         std::process::exit(130);
     }
@@ -535,11 +549,15 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
             opts: RenderOptions::default(),
         },
     )?;
+    let how = if a.voxelize {
+        format!("voxelized the primitives down to level {}", a.level)
+    } else {
+        format!("trained for {} iterations", summary.iters)
+    };
     println!(
-        "demo: trained {} voxels for {} iterations in {}; test views: PSNR {:.2} dB, SSIM {:.4} \
+        "demo: {} voxels, {how} in {}; test views: PSNR {:.2} dB, SSIM {:.4} \
          ({} views); renders (rgb, depth, normal PNGs) in {}",
         scene.num_voxels(),
-        summary.iters,
         fmt_duration(summary.seconds),
         rep.psnr,
         rep.ssim,
