@@ -34,11 +34,28 @@ pub fn gpu_grads(
     float_atomics: bool,
     chunk: Option<u32>,
 ) -> GpuGrads {
+    gpu_grads_ss(ctx, scene, cam, k, pix, spec, float_atomics, chunk, 1.0)
+}
+
+/// As [`gpu_grads`], rendering at `ss` times the camera's size (`pix` are the output
+/// pixels' weights; the backward transposes the downsample).
+#[allow(clippy::too_many_arguments)]
+pub fn gpu_grads_ss(
+    ctx: &Context,
+    scene: &Scene,
+    cam: &Camera,
+    k: u32,
+    pix: &[PixelWeights],
+    spec: &LossSpec,
+    float_atomics: bool,
+    chunk: Option<u32>,
+    ss: f32,
+) -> GpuGrads {
     let gpu = SceneGpu::upload(ctx, scene).unwrap();
     let mut r = Renderer::new(ctx).unwrap();
     let opts = RenderOptions {
         samples: k,
-        supersample: 1.0,
+        supersample: ss,
     };
     let stats = r.render_to_device(&gpu, cam, &opts, None).unwrap();
     let frame = r.last_frame().unwrap();
@@ -433,5 +450,88 @@ fn gradients_stay_finite_at_the_extremes() {
     check("sub-pixel voxels", &s, &far, 1, &mut rng);
     let inside = camera_inside(&mut rng, &s, 24, 24);
     check("camera inside", &s, &inside, 2, &mut rng);
+    finish(&ctx);
+}
+
+/// f64 transpose of the frame's tent downsample (raster/downsample.comp): the weights of
+/// render pixel p are Σ_q w_qp / Σ_p' w_qp' · u_q; ground truth from the output pixel
+/// containing p's centre.
+fn transpose_downsample(
+    u: &[PixelWeights],
+    ow: u32,
+    oh: u32,
+    rw: u32,
+    rh: u32,
+) -> Vec<PixelWeights> {
+    let (sx, sy) = (rw as f64 / ow as f64, rh as f64 / oh as f64);
+    let (rx, ry) = (sx.max(1.0), sy.max(1.0));
+    let tent = |i: u32, o: u32, s: f64, r: f64| {
+        (1.0 - ((i as f64 + 0.5) - (o as f64 + 0.5) * s).abs() / r).max(0.0)
+    };
+    let mut out = vec![PixelWeights::default(); (rw * rh) as usize];
+    for oy in 0..oh {
+        for ox in 0..ow {
+            let q = u[(oy * ow + ox) as usize];
+            let sum: f64 = (0..rh).map(|y| tent(y, oy, sy, ry)).sum::<f64>()
+                * (0..rw).map(|x| tent(x, ox, sx, rx)).sum::<f64>();
+            for y in 0..rh {
+                for x in 0..rw {
+                    let w = tent(y, oy, sy, ry) * tent(x, ox, sx, rx) / sum;
+                    if w == 0.0 {
+                        continue;
+                    }
+                    let p = &mut out[(y * rw + x) as usize];
+                    for c in 0..3 {
+                        p.rgb[c] += w * q.rgb[c];
+                        p.normal[c] += w * q.normal[c];
+                    }
+                    p.alpha += w * q.alpha;
+                    p.depth += w * q.depth;
+                }
+            }
+        }
+    }
+    for y in 0..rh {
+        for x in 0..rw {
+            let ox = (((x as f64 + 0.5) / sx) as u32).min(ow - 1);
+            let oy = (((y as f64 + 0.5) / sy) as u32).min(oh - 1);
+            out[(y * rw + x) as usize].gt = u[(oy * ow + ox) as usize].gt;
+        }
+    }
+    out
+}
+
+#[test]
+fn supersampled_backward_matches_reference_at_render_resolution() {
+    let ctx = context();
+    let mut rng = Rng(0x6a4d_0005);
+    let mut scene = random_scene(&mut rng, 6, 2);
+    for g in scene.geo.iter_mut() {
+        *g = (rng.range(-5.0, 2.5)) as f32;
+    }
+    let mut worst = [0.0f64; 4];
+    for ss in [1.5f32, 2.0] {
+        let mut cam = camera_outside(&mut rng, &scene, 19, 14);
+        let (rw, rh) = (
+            (cam.width as f32 * ss).round() as u32,
+            (cam.height as f32 * ss).round() as u32,
+        );
+        while ambiguous(&scene, &cam.resized(rw, rh), 1) {
+            cam = camera_outside(&mut rng, &scene, 19, 14);
+        }
+        let pix = random_weights(&mut rng, (cam.width * cam.height) as usize, [true; 5]);
+        let spec = LossSpec {
+            lambda_dist: 0.5,
+            lambda_r: 0.5,
+        };
+        let rpix = transpose_downsample(&pix, cam.width, cam.height, rw, rh);
+        let reference = grads(&scene, &cam.resized(rw, rh), 1, &rpix, &spec);
+        let g = gpu_grads_ss(&ctx, &scene, &cam, 1, &pix, &spec, true, None, ss);
+        compare(&format!("ss {ss}"), &g, &reference, &mut worst);
+    }
+    println!(
+        "worst relative errors: geo {:.2e} sh0 {:.2e} shs {:.2e} priority {:.2e}",
+        worst[0], worst[1], worst[2], worst[3]
+    );
     finish(&ctx);
 }

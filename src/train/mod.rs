@@ -2,6 +2,7 @@
 
 pub mod backward;
 pub mod config;
+pub mod loss;
 pub mod optim;
 pub mod ssim;
 pub mod trainer;

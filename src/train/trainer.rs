@@ -9,12 +9,12 @@ use rand::{Rng, SeedableRng};
 
 use super::backward::{Backward, EntryLosses, Gradients};
 use super::config::{Schedule, TrainConfig};
+use super::loss::PixelLoss;
 use super::optim::{Adam, AdamConfig, Tv};
 use super::ssim::Ssim;
 use crate::data::blender::Dataset;
 use crate::data::Camera;
-use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
-use crate::push_constants;
+use crate::gpu::{recorder, Buffer, Context, Memory, Timestamps};
 use crate::raster::{RenderOptions, Renderer, SceneGpu};
 use crate::scene::{octpath_from_ijk, Scene};
 use crate::{Error, Result};
@@ -44,21 +44,6 @@ pub struct StepInfo {
     /// Loss values when this iteration was asked to measure them.
     pub losses: Option<StepLosses>,
 }
-
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct LossPush {
-    frame: u64,
-    out_img: u64,
-    gt: u64,
-    dout: u64,
-    partials: u64,
-    w_mse: f32,
-    w_t: f32,
-    nout: u32,
-    nrender: u32,
-}
-push_constants!(LossPush, kernels::TRAIN_LOSS);
 
 /// Adam moments of one parameter group.
 struct Moments {
@@ -147,8 +132,7 @@ pub struct Trainer {
     ssim: Ssim,
     adam: Adam,
     tv: Tv,
-    loss_k: Kernel,
-    partials: Option<Buffer>,
+    loss: PixelLoss,
     gt: Buffer,
     cams: Vec<Camera>,
     width: u32,
@@ -226,8 +210,7 @@ impl Trainer {
             ssim: Ssim::new(ctx)?,
             adam: Adam::new(ctx)?,
             tv: Tv::new(ctx, float_atomics)?,
-            loss_k: Kernel::new(ctx, &kernels::TRAIN_LOSS)?,
-            partials: None,
+            loss: PixelLoss::new(ctx)?,
             gt,
             cams: train.cameras(),
             width: w,
@@ -336,21 +319,10 @@ impl Trainer {
         self.backward.prepare(&frame, self.scene.voxels)?;
         let nout = frame.out_width * frame.out_height;
         let nrender = frame.render_width * frame.render_height;
-        let groups = nout.max(nrender).div_ceil(256);
-        let need = groups as u64 * 3 * 4;
-        if !self.partials.as_ref().is_some_and(|b| b.size() >= need) {
-            self.partials = None;
-            self.partials = Some(self.ctx.buffer(
-                "train.partials",
-                need + need / 4,
-                Memory::Device,
-            )?);
-        }
         self.ssim.prepare(frame.out_width, frame.out_height)?;
         let gt_addr = self.gt.address() + (view as u64 * 3 * nout as u64) * 4;
         let out_addr = self.renderer.output_address()?;
         let dout_addr = self.backward.dout()?.address();
-        let partials_addr = self.partials.as_ref().expect("allocated").address();
 
         let lr_scale = if it >= self.schedule.lr_decay_at {
             cfg.lr_decay
@@ -369,27 +341,19 @@ impl Trainer {
         };
         let step = it + 1;
         let ctx = self.ctx.clone();
-        let max_x = ctx.info().max_compute_work_group_count[0];
         let res = ctx.submit_and_wait(|cmd| {
             if let Some(t) = timing.as_mut() {
                 t.1.begin(cmd);
             }
-            self.loss_k.dispatch(
+            self.loss.record(
                 cmd,
-                &LossPush {
-                    frame: frame.params,
-                    out_img: out_addr,
-                    gt: gt_addr,
-                    dout: dout_addr,
-                    partials: partials_addr,
-                    w_mse: cfg.lambda_mse / (3.0 * nout as f32),
-                    w_t: cfg.lambda_t / nout as f32,
-                    nout,
-                    nrender,
-                },
-                crate::gpu::grid_2d(groups, max_x),
-            );
-            recorder::barrier(&ctx, cmd);
+                &frame,
+                out_addr,
+                gt_addr,
+                dout_addr,
+                cfg.lambda_mse,
+                cfg.lambda_t,
+            )?;
             if cfg.lambda_ssim > 0.0 {
                 self.ssim.record(
                     cmd,
@@ -494,7 +458,7 @@ impl Trainer {
         }
         self.iter += 1;
         let losses = if measure {
-            Some(self.read_losses(groups, nout, nrender, lambda_dist, lambda_tv)?)
+            Some(self.read_losses(lambda_dist, lambda_tv)?)
         } else {
             None
         };
@@ -508,29 +472,12 @@ impl Trainer {
         })
     }
 
-    fn read_losses(
-        &self,
-        groups: u32,
-        nout: u32,
-        nrender: u32,
-        lambda_dist: f32,
-        lambda_tv: f32,
-    ) -> Result<StepLosses> {
+    fn read_losses(&self, lambda_dist: f32, lambda_tv: f32) -> Result<StepLosses> {
         let cfg = &self.cfg;
-        let parts: Vec<f32> = self.ctx.download(
-            self.partials.as_ref().expect("allocated"),
-            0,
-            groups as usize * 3,
-        )?;
-        let mut sums = [0f64; 3];
-        for g in parts.chunks_exact(3) {
-            for k in 0..3 {
-                sums[k] += g[k] as f64;
-            }
-        }
-        let mse = sums[0] / (3.0 * nout as f64);
-        let tconc = sums[1] / nout as f64;
-        let dist = sums[2] / nrender as f64;
+        let sums = self.loss.read()?;
+        let mse = sums.squared_error / (3.0 * sums.out_pixels as f64);
+        let tconc = sums.t_concentration / sums.out_pixels as f64;
+        let dist = sums.distortion / sums.render_pixels as f64;
         let ssim = if cfg.lambda_ssim > 0.0 {
             self.ssim.read_value()?
         } else {

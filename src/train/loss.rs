@@ -1,0 +1,131 @@
+//! Pixel losses of a training frame (glsl/train/loss.comp): MSE on rgb and the
+//! transmittance concentration T²(1−T)² (T = 1 − alpha), written as gradients w.r.t.
+//! the frame's outputs into the backward's `dout` image (every channel, so SSIM can
+//! add to it next), plus per-workgroup partial sums of the squared error, the
+//! concentration term and the frame's per-pixel distortion values for logging.
+
+use ash::vk;
+
+use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
+use crate::push_constants;
+use crate::raster::FrameGeometry;
+use crate::Result;
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct LossPush {
+    frame: u64,
+    out_img: u64,
+    gt: u64,
+    dout: u64,
+    partials: u64,
+    w_mse: f32,
+    w_t: f32,
+    nout: u32,
+    nrender: u32,
+}
+push_constants!(LossPush, kernels::TRAIN_LOSS);
+
+/// Sums of the last recorded frame's pixel losses.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LossSums {
+    /// Σ over output pixels and channels of (rgb − gt)².
+    pub squared_error: f64,
+    /// Σ over output pixels of T²(1−T)².
+    pub t_concentration: f64,
+    /// Σ over render pixels of the distortion loss value.
+    pub distortion: f64,
+    pub out_pixels: u32,
+    pub render_pixels: u32,
+}
+
+/// The pixel-loss kernel and its partial-sum buffer.
+pub struct PixelLoss {
+    ctx: Context,
+    kernel: Kernel,
+    partials: Option<Buffer>,
+    groups: u32,
+    pixels: (u32, u32),
+}
+
+impl PixelLoss {
+    pub fn new(ctx: &Context) -> Result<PixelLoss> {
+        Ok(PixelLoss {
+            ctx: ctx.clone(),
+            kernel: Kernel::new(ctx, &kernels::TRAIN_LOSS)?,
+            partials: None,
+            groups: 0,
+            pixels: (0, 0),
+        })
+    }
+
+    /// Records the losses of `frame` (its output image at `out_img`, planar
+    /// [`crate::raster::CHANNELS`]) against `gt` (planar rgb at output resolution) into
+    /// `dout`: with `lambda_mse`·mean((rgb − gt)²) over 3·pixels and
+    /// `lambda_t`·mean(T²(1−T)²) over pixels. Ends with a barrier.
+    #[allow(clippy::too_many_arguments)]
+    pub fn record(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        frame: &FrameGeometry,
+        out_img: u64,
+        gt: u64,
+        dout: u64,
+        lambda_mse: f32,
+        lambda_t: f32,
+    ) -> Result<()> {
+        let nout = frame.out_width * frame.out_height;
+        let nrender = frame.render_width * frame.render_height;
+        let groups = nout.max(nrender).div_ceil(256);
+        let need = groups as u64 * 3 * 4;
+        if !self.partials.as_ref().is_some_and(|b| b.size() >= need) {
+            self.partials = None;
+            self.partials = Some(self.ctx.buffer(
+                "loss.partials",
+                need + need / 4,
+                Memory::Device,
+            )?);
+        }
+        let max_x = self.ctx.info().max_compute_work_group_count[0];
+        self.kernel.dispatch(
+            cmd,
+            &LossPush {
+                frame: frame.params,
+                out_img,
+                gt,
+                dout,
+                partials: self.partials.as_ref().expect("allocated").address(),
+                w_mse: lambda_mse / (3.0 * nout as f32),
+                w_t: lambda_t / nout as f32,
+                nout,
+                nrender,
+            },
+            crate::gpu::grid_2d(groups, max_x),
+        );
+        recorder::barrier(&self.ctx, cmd);
+        self.groups = groups;
+        self.pixels = (nout, nrender);
+        Ok(())
+    }
+
+    /// The sums of the last recorded frame (after it completed).
+    pub fn read(&self) -> Result<LossSums> {
+        let parts: Vec<f32> = match &self.partials {
+            Some(b) if self.groups > 0 => self.ctx.download(b, 0, self.groups as usize * 3)?,
+            _ => Vec::new(),
+        };
+        let mut s = [0f64; 3];
+        for g in parts.chunks_exact(3) {
+            for k in 0..3 {
+                s[k] += g[k] as f64;
+            }
+        }
+        Ok(LossSums {
+            squared_error: s[0],
+            t_concentration: s[1],
+            distortion: s[2],
+            out_pixels: self.pixels.0,
+            render_pixels: self.pixels.1,
+        })
+    }
+}
