@@ -249,6 +249,14 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         atomic_write(&cfg_path, serde_json::to_string_pretty(&doc)?.as_bytes())?;
         let _ = std::fs::remove_file(run.join("stats.jsonl"));
     }
+    if ctx.info().is_cpu && !a.resume && a.preset == "synthetic" {
+        eprintln!(
+            "note: {} is a CPU device; the synthetic preset (level-7 grid, supersampling) \
+             takes tens of seconds per iteration here. --preset quick trains a level-6 grid \
+             ~10x faster",
+            ctx.info().name
+        );
+    }
     eprintln!(
         "training {} voxels (grid level {}) on {} views of {}×{} for {} iterations → {}",
         trainer.voxels(),
