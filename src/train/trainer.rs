@@ -450,7 +450,7 @@ impl Trainer {
         }
         self.timing = timing;
         res?;
-        if self.backward.read_lost()? != 0 {
+        if self.backward.read_lost()? != 0 || self.tv.read_lost()? != 0 {
             return Err(Error::Gpu(
                 "compare-and-swap float adds gave up under contention: gradients are incomplete"
                     .into(),
