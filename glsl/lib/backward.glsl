@@ -22,6 +22,7 @@
 #include "morton.glsl"
 #include "ray_aabb.glsl"
 #include "trilinear.glsl"
+#include "entry_stage.glsl"
 #include "backward_params.glsl"
 layout(local_size_x = 256) in;
 
@@ -32,12 +33,6 @@ layout(push_constant) uniform Push {
     uint pad;
 } pc;
 
-shared uint s_val[256];
-shared uvec2 s_box[256];
-shared vec4 s_cs[256];
-shared float s_geo[256 * 8];
-shared float s_rgb[256 * 3];
-shared float s_nrm[256 * 3];
 shared uint s_last;
 
 float explin_grad(float x) {
@@ -105,26 +100,14 @@ void main() {
         top = base;
         barrier();
         if (l < cnt) {
-            uint val = P.svals.v[start + base + l];
-            uint v = val & 0x1fffffffu;
-            s_val[l] = val;
-            s_box[l] = uvec2(P.bbox.v[2u * v], P.bbox.v[2u * v + 1u]);
-            s_cs[l] = vec4(P.cs.v[4u * v], P.cs.v[4u * v + 1u], P.cs.v[4u * v + 2u], P.cs.v[4u * v + 3u]);
-            for (uint c = 0u; c < 8u; ++c) s_geo[8u * l + c] = P.geo8.v[8u * v + c];
-            for (uint c = 0u; c < 3u; ++c) {
-                s_rgb[3u * l + c] = P.rgb.v[3u * v + c];
-                s_nrm[3u * l + c] = P.nrm.v[3u * v + c];
-            }
+            stage_entry(P, l, start + base + l);
         }
         barrier();
 
         for (uint jj = cnt; jj > 0u; --jj) {
             uint j = jj - 1u;
             uint idx = start + base + j;
-            uvec2 box = s_box[j];
-            bool need = inside && idx < last && (s_val[j] >> 29u) == sign &&
-                        pix.x >= (box.x & 0xffffu) && pix.x <= (box.y & 0xffffu) &&
-                        pix.y >= (box.x >> 16u) && pix.y <= (box.y >> 16u);
+            bool need = inside && idx < last && entry_covers(j, sign, pix);
             if (!subgroupAny(need)) continue;
 
             // Recompute the forward quantities of this entry (identically to composite).

@@ -181,9 +181,9 @@ fn alpha_of(
 }
 
 /// Renders one pixel centre (u, v) (pixel coordinates, centres at i + 0.5).
-pub fn render_pixel(scene: &Scene, cam: &Camera, u: f64, v: f64, k: usize) -> RefPixel {
-    let (o, d, norm) = pixel_ray(cam, u, v);
-    let t_near = cam.near * norm;
+/// Every voxel the ray `o + t·d` (t ≥ t_near) meets, as (entry, exit, voxel), in
+/// compositing order (entry distance, then exit).
+pub fn ray_hits(scene: &Scene, o: [f64; 3], d: [f64; 3], t_near: f64) -> Vec<(f64, f64, usize)> {
     let mut hits: Vec<(f64, f64, usize)> = Vec::new();
     for i in 0..scene.num_voxels() {
         let lo = scene.voxel_min(i);
@@ -196,6 +196,13 @@ pub fn render_pixel(scene: &Scene, cam: &Camera, u: f64, v: f64, k: usize) -> Re
         }
     }
     hits.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.total_cmp(&y.1)));
+    hits
+}
+
+pub fn render_pixel(scene: &Scene, cam: &Camera, u: f64, v: f64, k: usize) -> RefPixel {
+    let (o, d, norm) = pixel_ray(cam, u, v);
+    let t_near = cam.near * norm;
+    let hits = ray_hits(scene, o, d, t_near);
     let mut px = RefPixel {
         hits: hits.len(),
         ..Default::default()

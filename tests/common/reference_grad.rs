@@ -55,7 +55,7 @@
 #![allow(dead_code, clippy::needless_range_loop, clippy::too_many_arguments)]
 
 use super::reference::{
-    dot, explin, normalize, pixel_ray, ray_aabb, sh_basis, sub, trilinear, EARLY_STOP_T, MAX_ALPHA,
+    dot, explin, normalize, pixel_ray, ray_hits, sh_basis, sub, trilinear, EARLY_STOP_T, MAX_ALPHA,
     MIN_ALPHA, STEP_SZ_SCALE,
 };
 use svraster::data::Camera;
@@ -186,18 +186,7 @@ pub fn pixel_rays(scene: &Scene, cam: &Camera) -> Vec<PixelRay> {
         for px in 0..cam.width {
             let (o, d, norm) = pixel_ray(cam, px as f64 + 0.5, py as f64 + 0.5);
             let t_near = cam.near * norm;
-            let mut hits: Vec<(f64, f64, usize)> = Vec::new();
-            for i in 0..scene.num_voxels() {
-                let lo = scene.voxel_min(i);
-                let s = scene.voxel_size(i);
-                let hi = [lo[0] + s, lo[1] + s, lo[2] + s];
-                let (a, b) = ray_aabb(lo, hi, o, d);
-                let a = a.max(t_near);
-                if a <= b {
-                    hits.push((a, b, i));
-                }
-            }
-            hits.sort_by(|x, y| x.0.total_cmp(&y.0).then(x.1.total_cmp(&y.1)));
+            let hits = ray_hits(scene, o, d, t_near);
             rays.push(PixelRay { o, d, norm, hits });
         }
     }
