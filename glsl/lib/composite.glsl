@@ -61,6 +61,12 @@ void main() {
         med_t = P.med_t.v[p];
     }
     bool done = !inside || T < EARLY_STOP_T;
+    // Max-weight statistics: only when a target is set, and never from a frame whose
+    // entries overflowed the key buffers (its tile lists miss voxels, which would
+    // inflate the transmittance of those behind). A frame short of chunks composites
+    // an exact prefix of every list, so its weights are the complete frame's.
+    bool track_maxw = uint64_t(P.maxw) != 0ul &&
+                      U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u] <= uint64_t(P.cfg.w);
 
     uint chunk_size = P.cfg2.y;
     uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
@@ -115,6 +121,13 @@ void main() {
             if (alpha < MIN_ALPHA) continue;
 
             float w = T * alpha;
+            if (track_maxw) {
+                // w >= 0: its bits order as the floats do. Read first, so most
+                // entries skip the atomic.
+                uint vid = s_val[j] & 0x1fffffffu;
+                uint wb = floatBitsToUint(w);
+                if (P.maxw.v[vid] < wb) atomicMax(P.maxw.v[vid], wb);
+            }
             float mid = 0.5 * (a + b);
             dist_l += w * (2.0 * (mid * (1.0 - T) - dist_m) + w * (b - a) * (1.0 / 3.0));
             dist_m += w * mid;

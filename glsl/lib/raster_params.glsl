@@ -34,6 +34,10 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     // per pixel, for training: 1 + index of the last contributing sorted entry (0: none),
     // and AUX_CHANNELS planar floats (distortion sums, exact final transmittance)
     U32s last; F32s aux;
+    // optional (0: off): per voxel, the largest blending weight T·α seen on any pixel
+    // of the frames recorded with it set, as float bits folded in with atomicMax (the
+    // adaptive pass's statistics, paper §3.2.2)
+    U32s maxw;
 };
 
 // Words of the stats buffer.

@@ -795,6 +795,17 @@ impl Context {
         r
     }
 
+    /// Device memory the engine's allocator holds (bytes, all memory types), including
+    /// the unused parts of its blocks.
+    pub fn memory_allocated(&self) -> u64 {
+        match self.inner.allocator.lock() {
+            Ok(a) => a
+                .as_ref()
+                .map_or(0, |a| a.generate_report().total_capacity_bytes),
+            Err(_) => 0,
+        }
+    }
+
     /// Fails if validation reported anything (tests call this at the end).
     pub fn check_validation(&self) -> Result<()> {
         match self.validation_messages() {

@@ -240,8 +240,10 @@ struct FrameParams {
     stats: u64,
     last: u64,
     aux: u64,
+    /// Optional per-voxel max-weight target (0: off), see [`Renderer::set_max_weight_target`].
+    maxw: u64,
 }
-const _: () = assert!(std::mem::size_of::<FrameParams>() == 240 + 26 * 8);
+const _: () = assert!(std::mem::size_of::<FrameParams>() == 240 + 27 * 8);
 /// Planar channels of the per-pixel training aux buffer (`AUX_*` in raster_params.glsl).
 pub(crate) const AUX_CHANNELS: u64 = 3;
 
@@ -388,6 +390,7 @@ pub struct Renderer {
     stats: Buffer,
     params: Buffer,
     last: Option<Plan>,
+    maxw_target: u64,
 }
 
 impl Renderer {
@@ -440,7 +443,25 @@ impl Renderer {
                 Memory::Device,
             )?,
             last: None,
+            maxw_target: 0,
         })
+    }
+
+    /// Sets (or with `None` clears) the per-voxel max-weight target of the frames
+    /// recorded from now on: the device address of a `u32` buffer with one word per
+    /// voxel of the scenes rendered, holding non-negative `f32` bits. Every contributing
+    /// ray–voxel segment folds its blending weight `T·α` into its voxel's word with an
+    /// atomic max (paper §3.2.2, the pruning statistic). A frame whose entries overflow
+    /// the key buffers folds nothing (it is rendered again after growing); a frame short
+    /// of composite chunks folds the exact weights of the part it composited. Without a
+    /// target frames are unaffected.
+    pub fn set_max_weight_target(&mut self, address: Option<u64>) {
+        self.maxw_target = address.unwrap_or(0);
+    }
+
+    /// The current max-weight target (see [`Renderer::set_max_weight_target`]).
+    pub fn max_weight_target(&self) -> Option<u64> {
+        (self.maxw_target != 0).then_some(self.maxw_target)
     }
 
     /// Entries per composite dispatch (the loop-limit guard on CPU devices).
@@ -722,6 +743,7 @@ impl Renderer {
             stats: self.stats.address(),
             last: self.last_id.address(),
             aux: self.aux.address(),
+            maxw: self.maxw_target,
         };
         let dev = ctx.device();
         let pa = ParamsPush {

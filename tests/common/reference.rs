@@ -157,7 +157,9 @@ pub fn pixel_ray(cam: &Camera, px: f64, py: f64) -> ([f64; 3], [f64; 3], f64) {
     (cam.origin(), d, norm)
 }
 
-fn alpha_of(
+/// α of the segment [a, b] of the ray o + t·d through a voxel with K samples (clamped
+/// to MAX_ALPHA), the per-sample α and the step length.
+pub fn alpha_of(
     g: &[f64; 8],
     vmin: [f64; 3],
     size: f64,

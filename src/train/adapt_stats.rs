@@ -1,0 +1,235 @@
+//! Per-voxel statistics of the adaptive pass (paper §3.2.2, Eq. 7): over a set of
+//! views, the largest blending weight `T·α` each voxel receives on any pixel ray (the
+//! pruning criterion) and the smallest sampling interval over the views that show it
+//! (the subdivision guard: sampling rate = voxel size / interval).
+//!
+//! * **Max weight** comes from the forward composite itself: with a target set
+//!   ([`Renderer::set_max_weight_target`]) every contributing ray–voxel segment folds
+//!   its `w = T·α` (exactly as composited: after the α < 1e-5 skip and the α clamp, up
+//!   to the early stop) into its voxel's word with an atomic max on the float bits.
+//! * **Min interval** (kernel `adapt/sampling_interval`, thread per voxel, after the
+//!   frame): for each voxel with at least one (tile, sign) entry in the view (the
+//!   renderer's own visibility: its near-clipped projected box covers a pixel centre),
+//!   `min(old, max(z, near) / fx)` with z the camera depth of the voxel centre and fx
+//!   the focal length in pixels (Eq. 7b: `z·tan(fov_x/2)/(W/2)`). Never-visible voxels
+//!   keep +inf.
+//!
+//! Grow-and-retry: [`StatsPass::add_view`] renders through
+//! [`Renderer::render_to_device`], which may render a view several times while it grows
+//! its buffers. A retried frame leaves nothing stale: a frame whose entries overflowed
+//! folds no weights at all (the composite checks the entry total against the capacity;
+//! its tile lists miss voxels, which would *inflate* the weights of those behind them,
+//! so this case is not harmless for a max), a frame short of composite chunks folds the
+//! exact weights of the prefix of each tile list it composited (a subset of the complete
+//! frame's, harmless for a max), and the interval kernel runs once, after the complete
+//! frame.
+
+use ash::vk;
+use bytemuck::{Pod, Zeroable};
+
+use crate::data::Camera;
+use crate::error::{Error, Result};
+use crate::gpu::{grid_2d, kernels, recorder, Buffer, Context, Kernel, Memory};
+use crate::push_constants;
+use crate::raster::{RenderOptions, Renderer, SceneGpu};
+use crate::scene::Scene;
+
+/// Voxels per workgroup of the interval kernel.
+const GROUP: u32 = 256;
+
+/// Per-voxel statistics gathered over a set of views (host copy).
+#[derive(Clone, Debug, Default)]
+pub struct VoxelStats {
+    /// Largest blending weight `T·α` on any pixel ray of any view (0: never contributed).
+    pub max_weight: Vec<f32>,
+    /// Smallest sampling interval `max(z, near) / fx` over the views showing the voxel
+    /// (world units per pixel at the voxel's depth; +inf: never visible).
+    pub min_interval: Vec<f32>,
+}
+
+impl VoxelStats {
+    /// Sampling rate `size / min_interval` per voxel (paper Eq. 7a; 0 where never
+    /// visible). `scene` must be the scene the statistics were gathered on; the result
+    /// has one entry per voxel of the shorter of the two.
+    pub fn sampling_rate(&self, scene: &Scene) -> Vec<f32> {
+        let n = self.min_interval.len().min(scene.num_voxels());
+        (0..n)
+            .map(|i| {
+                let int = self.min_interval[i];
+                if int.is_finite() && int > 0.0 {
+                    (scene.voxel_size(i) / f64::from(int)) as f32
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct IntervalPush {
+    params: u64,
+    minint: u64,
+    count: u32,
+    pad: u32,
+}
+push_constants!(IntervalPush, kernels::ADAPT_SAMPLING_INTERVAL);
+
+/// The statistics pass: the interval kernel and the device accumulators.
+pub struct StatsPass {
+    ctx: Context,
+    kernel: Kernel,
+    /// One `u32` (f32 bits) per voxel.
+    max_weight: Option<Buffer>,
+    /// One `f32` per voxel.
+    min_interval: Option<Buffer>,
+    voxels: u32,
+}
+
+impl StatsPass {
+    pub fn new(ctx: &Context) -> Result<StatsPass> {
+        Ok(StatsPass {
+            ctx: ctx.clone(),
+            kernel: Kernel::new(ctx, &kernels::ADAPT_SAMPLING_INTERVAL)?,
+            max_weight: None,
+            min_interval: None,
+            voxels: 0,
+        })
+    }
+
+    /// Voxels of the current accumulation (set by [`StatsPass::begin`]).
+    pub fn voxels(&self) -> u32 {
+        self.voxels
+    }
+
+    /// Resets the accumulators for `voxels` voxels: max weight 0, min interval +inf.
+    /// Grows the device buffers as needed (by 1.5×; no frame using them may be in
+    /// flight).
+    pub fn begin(&mut self, voxels: u32) -> Result<()> {
+        let bytes = u64::from(voxels.max(1)) * 4;
+        let small = |b: &Option<Buffer>| b.as_ref().map_or(true, |b| b.size() < bytes);
+        if small(&self.max_weight) || small(&self.min_interval) {
+            let size = bytes.saturating_add(bytes / 2);
+            // Free the old ones first, so peak memory stays low.
+            self.max_weight = None;
+            self.min_interval = None;
+            self.max_weight = Some(self.ctx.buffer("adapt.max-weight", size, Memory::Device)?);
+            self.min_interval = Some(self.ctx.buffer(
+                "adapt.min-interval",
+                size,
+                Memory::Device,
+            )?);
+        }
+        let (mw, mi) = self.buffers()?;
+        self.ctx.submit_and_wait(|cmd| {
+            recorder::fill(&self.ctx, cmd, mw, 0, vk::WHOLE_SIZE, 0);
+            recorder::fill(
+                &self.ctx,
+                cmd,
+                mi,
+                0,
+                vk::WHOLE_SIZE,
+                f32::INFINITY.to_bits(),
+            );
+            recorder::barrier(&self.ctx, cmd);
+            Ok(())
+        })?;
+        self.voxels = voxels;
+        Ok(())
+    }
+
+    fn buffers(&self) -> Result<(&Buffer, &Buffer)> {
+        match (&self.max_weight, &self.min_interval) {
+            (Some(a), Some(b)) => Ok((a, b)),
+            _ => Err(Error::Invalid(
+                "StatsPass: call begin() before adding views".into(),
+            )),
+        }
+    }
+
+    /// Renders `cam` (supersampling 1, `samples` per voxel segment) and folds its
+    /// weights and intervals into the accumulators. `scene` must have the voxel count
+    /// given to [`StatsPass::begin`]. Handles the renderer's grow-and-retry (see the
+    /// module notes: a retried frame leaves nothing stale). Leaves the renderer's
+    /// max-weight target unset afterwards, also on error.
+    pub fn add_view(
+        &mut self,
+        renderer: &mut Renderer,
+        scene: &SceneGpu,
+        cam: &Camera,
+        samples: u32,
+    ) -> Result<()> {
+        if scene.voxels != self.voxels {
+            return Err(Error::Invalid(format!(
+                "StatsPass::add_view: the scene has {} voxels, the accumulators {} \
+                 (call begin() for this scene)",
+                scene.voxels, self.voxels
+            )));
+        }
+        let mw_addr = self.buffers()?.0.address();
+        let opts = RenderOptions {
+            samples,
+            supersample: 1.0,
+        };
+        renderer.set_max_weight_target(Some(mw_addr));
+        let rendered = renderer.render_to_device(scene, cam, &opts, None);
+        renderer.set_max_weight_target(None);
+        rendered?;
+        if scene.voxels == 0 {
+            return Ok(());
+        }
+        // The frame completed (render_to_device waited for it); one more small
+        // submission folds its intervals. No per-view download.
+        let params = renderer.last_frame()?.params;
+        self.ctx
+            .submit_and_wait(|cmd| self.record_interval_fold(cmd, params))
+    }
+
+    /// Records the interval fold of a frame recorded earlier (for callers recording
+    /// their own frames, e.g. in one command buffer after [`Renderer::record`]):
+    /// `params` is [`Renderer::last_frame`]'s parameter block, and the frame must have
+    /// the voxel count given to [`StatsPass::begin`] and turn out complete. Needs a
+    /// compute barrier after the frame (as [`Renderer::record`] leaves one); records one
+    /// after the dispatch.
+    pub fn record_interval_fold(&self, cmd: vk::CommandBuffer, params: u64) -> Result<()> {
+        let (_, mi) = self.buffers()?;
+        let push = IntervalPush {
+            params,
+            minint: mi.address(),
+            count: self.voxels,
+            pad: 0,
+        };
+        let groups = grid_2d(
+            self.voxels.div_ceil(GROUP),
+            self.ctx.info().max_compute_work_group_count[0],
+        );
+        self.kernel.dispatch(cmd, &push, groups);
+        recorder::barrier(&self.ctx, cmd);
+        Ok(())
+    }
+
+    /// Device address of the max-weight accumulator (one `u32` of `f32` bits per voxel).
+    pub fn max_weight_address(&self) -> u64 {
+        self.max_weight.as_ref().map_or(0, |b| b.address())
+    }
+
+    /// Device address of the min-interval accumulator (one `f32` per voxel).
+    pub fn min_interval_address(&self) -> u64 {
+        self.min_interval.as_ref().map_or(0, |b| b.address())
+    }
+
+    /// Downloads the accumulators (waits for the device).
+    pub fn read(&self) -> Result<VoxelStats> {
+        if self.voxels == 0 {
+            return Ok(VoxelStats::default());
+        }
+        let (mw, mi) = self.buffers()?;
+        let n = self.voxels as usize;
+        let bits: Vec<u32> = self.ctx.download(mw, 0, n)?;
+        Ok(VoxelStats {
+            max_weight: bits.into_iter().map(f32::from_bits).collect(),
+            min_interval: self.ctx.download(mi, 0, n)?,
+        })
+    }
+}
