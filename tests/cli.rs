@@ -112,12 +112,20 @@ fn render_rejects_bad_input_with_one_clear_error() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// Iterations logged in a run's stats.jsonl.
-fn logged(run: &std::path::Path) -> Vec<serde_json::Value> {
+/// Every line of a run's stats.jsonl.
+fn stats_lines(run: &std::path::Path) -> Vec<serde_json::Value> {
     std::fs::read_to_string(run.join("stats.jsonl"))
         .unwrap_or_default()
         .lines()
         .map(|l| serde_json::from_str(l).expect("stats line is JSON"))
+        .collect()
+}
+
+/// Iterations logged in a run's stats.jsonl (the adaptive steps' lines left out).
+fn logged(run: &std::path::Path) -> Vec<serde_json::Value> {
+    stats_lines(run)
+        .into_iter()
+        .filter(|l| l.get("adapt").is_none())
         .collect()
 }
 
@@ -204,8 +212,42 @@ fn train_interrupt_resume_eval_and_bench() {
         iters.windows(2).all(|w| w[0] < w[1] || w[1] == stopped + 1),
         "{iters:?}"
     );
-    for k in ["loss", "psnr", "ssim", "it_per_s", "voxels"] {
+    for k in [
+        "loss",
+        "psnr",
+        "ssim",
+        "it_per_s",
+        "voxels",
+        "grid_points",
+        "device_memory",
+    ] {
         assert!(lines.last().unwrap()[k].is_number(), "stats lack {k}");
+    }
+    // The adaptive layout (the default) logged its steps: counts, grid points, memory.
+    let adapt: Vec<serde_json::Value> = stats_lines(&run)
+        .into_iter()
+        .filter_map(|l| l.get("adapt").cloned())
+        .collect();
+    assert!(!adapt.is_empty(), "no adaptive steps logged");
+    for a in &adapt {
+        for k in [
+            "iter",
+            "voxels_before",
+            "pruned",
+            "subdivided",
+            "voxels",
+            "grid_points",
+            "device_memory",
+        ] {
+            assert!(a[k].is_number(), "adapt line lacks {k}: {a}");
+        }
+        assert_eq!(
+            a["voxels"].as_u64().unwrap(),
+            a["voxels_before"].as_u64().unwrap() - a["pruned"].as_u64().unwrap()
+                + 7 * a["subdivided"].as_u64().unwrap(),
+            "{a}"
+        );
+        assert!(a["device_memory"].as_u64().unwrap() > 0);
     }
     let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);
     assert!(!ok && err.contains("already completed"), "{err}");
@@ -301,5 +343,72 @@ fn train_rejects_bad_input_with_one_clear_error() {
     std::fs::write(out.join("optimizer.bin"), b"SVRVKOPTjunk").unwrap();
     let (ok, _, err) = svraster(&["train", d, "--out", o, "--resume"]);
     assert!(!ok && err.contains("optimizer.bin"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn bench_trade_writes_table_json_and_chart() {
+    let dir = tmp("trade");
+    let data = dir.join("data");
+    svraster::data::demo::write_dataset(
+        &data,
+        &svraster::data::demo::DemoOptions {
+            width: 24,
+            height: 24,
+            train: 8,
+            val: 2,
+            test: 1,
+            seed: 3,
+        },
+    )
+    .unwrap();
+    let out = dir.join("trade");
+    let (ok, stdout, err) = svraster(&[
+        "bench",
+        "trade",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--downscale",
+        "1",
+        "--iters",
+        "160",
+        "--max-voxels",
+        "3000",
+        "--uniform-levels",
+        "3,4",
+        "--set",
+        "grid_level=3",
+        "--set",
+        "subdivide_percent=0.3",
+        "--json",
+    ]);
+    assert!(ok, "bench trade failed: {stdout}\n{err}");
+    let doc: serde_json::Value = serde_json::from_str(stdout.trim()).expect("trade JSON");
+    let rows = doc["rows"].as_array().unwrap();
+    let names: Vec<&str> = rows
+        .iter()
+        .map(|r| r["variant"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["adaptive", "uniform-3", "uniform-4"]);
+    for r in rows {
+        let voxels = r["voxels"].as_u64().unwrap();
+        assert!(voxels > 0 && voxels <= 3000, "{r}");
+        assert!(r["psnr"].as_f64().unwrap() > 10.0, "{r}");
+        assert!((0.0..=1.0).contains(&r["ssim"].as_f64().unwrap()), "{r}");
+        assert!(r["train_s"].as_f64().unwrap() > 0.0 && r["ms_per_frame"].as_f64().unwrap() > 0.0);
+        assert!(r["peak_device_memory"].as_u64().unwrap() > 0, "{r}");
+    }
+    // uniform-3 never subdivides; uniform-4 subdivides every kept voxel once.
+    assert_eq!(rows[1]["max_level"], 3);
+    assert_eq!(rows[2]["max_level"], 4);
+    let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
+    assert_eq!(
+        md.lines().filter(|l| l.starts_with("| uniform-")).count(),
+        2,
+        "{md}"
+    );
+    let png = image::open(out.join("trade.png")).expect("trade.png decodes");
+    assert!(png.width() >= 640 && png.height() >= 480);
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -1,8 +1,10 @@
 //! clap commands.
 
 mod bench;
+mod chart;
 mod info;
 mod render;
+mod trade;
 mod train;
 
 use std::path::PathBuf;
@@ -48,7 +50,8 @@ enum Command {
         /// Training iterations.
         #[arg(long, default_value_t = 300)]
         iters: u32,
-        /// Level of the uniform voxel grid (5: 32 768 voxels).
+        /// Level of the initial voxel grid (5: 32 768 voxels), pruned and subdivided during
+        /// training (with --voxelize: the finest level).
         #[arg(long, default_value_t = 5)]
         level: u32,
         /// Seed of the camera positions and of training.
@@ -82,6 +85,10 @@ enum Command {
         /// in RUN/config.json).
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
+        /// Voxel budget: subdivision stops at this many voxels (default: derived from
+        /// the device's memory; same as --set max_voxels=N).
+        #[arg(long)]
+        max_voxels: Option<u64>,
         /// Continue the run in --out from its last checkpoint.
         #[arg(long)]
         resume: bool,
@@ -173,9 +180,13 @@ pub fn run() -> anyhow::Result<()> {
             downscale,
             preset,
             seed,
-            set,
+            mut set,
+            max_voxels,
             resume,
         } => {
+            if let Some(n) = max_voxels {
+                set.push(format!("max_voxels={n}"));
+            }
             let s = train::run_train(
                 &ctx,
                 &train::TrainArgs {

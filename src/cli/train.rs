@@ -243,6 +243,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             "image_size": [train.width, train.height],
             "train_views": train.frames.len(),
             "voxels": trainer.voxels(),
+            "voxel_budget": trainer.budget(),
             "device": ctx.info().name,
             "float_atomics": trainer.float_atomics(),
         });
@@ -251,16 +252,19 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     }
     if ctx.info().is_cpu && !a.resume && a.preset == "synthetic" {
         eprintln!(
-            "note: {} is a CPU device; the synthetic preset (level-7 grid, supersampling) \
-             takes tens of seconds per iteration here. --preset quick trains a level-6 grid \
-             ~10x faster",
+            "note: {} is a CPU device; the synthetic preset (supersampling 1.5, the paper's \
+             density learning rate) needs thousands of iterations at seconds each here. \
+             --preset quick converges in a few hundred",
             ctx.info().name
         );
     }
     eprintln!(
-        "training {} voxels (grid level {}) on {} views of {}×{} for {} iterations → {}",
+        "training {} voxels (level-{} grid, voxels no camera sees removed; layout {:?}, \
+         budget {} voxels) on {} views of {}×{} for {} iterations → {}",
         trainer.voxels(),
         cfg.grid_level,
+        cfg.layout,
+        trainer.budget(),
         train.frames.len(),
         train.width,
         train.height,
@@ -314,12 +318,36 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
                 "loss": l.loss, "mse": l.mse, "psnr": l.psnr, "ssim": l.ssim,
                 "t_concentration": l.t_concentration, "distortion": l.distortion, "tv": l.tv,
                 "sh_degree": info.sh_degree, "ss": info.supersample, "entries": info.entries,
-                "voxels": trainer.voxels(), "elapsed_s": el,
+                "voxels": trainer.voxels(), "grid_points": trainer.grid_points(),
+                "device_memory": trainer.device_memory(), "elapsed_s": el,
                 "it_per_s": (info.iter - first) as f64 / el.max(1e-9),
             });
             writeln!(stats, "{line}")
                 .with_context(|| format!("cannot write {}", stats_path.display()))?;
             shown = Some(l);
+        }
+        if let Some(r) = &info.adapt {
+            let line = serde_json::json!({ "adapt": r });
+            writeln!(stats, "{line}")
+                .with_context(|| format!("cannot write {}", stats_path.display()))?;
+            let msg = format!(
+                "adapt @{}: pruned {} (max weight < {}), subdivided {} → {} voxels, {} grid \
+                 points, max level {}, {:.0} MiB device memory, {:.1} s",
+                r.iter,
+                r.pruned,
+                r.prune_below.map_or("-".into(), |t| format!("{t:.4}")),
+                r.subdivided,
+                r.voxels,
+                r.grid_points,
+                r.max_level,
+                r.device_memory as f64 / (1u64 << 20) as f64,
+                r.seconds
+            );
+            if tty {
+                eprint!("\r{msg}\n");
+            } else {
+                eprintln!("{msg}");
+            }
         }
         if sched.checkpoints.contains(&info.iter) {
             trainer.check_finite()?;
