@@ -84,6 +84,38 @@ pub enum BenchCmd {
         #[arg(long)]
         json: bool,
     },
+    /// Speed/accuracy trade of the voxel layout (paper Tab. 6): adaptive vs uniform
+    /// layouts trained under one voxel budget, evaluated on a held-out split; writes
+    /// OUT/trade.md, OUT/trade.json and OUT/trade.png.
+    Trade {
+        /// Blender-format dataset.
+        data: std::path::PathBuf,
+        /// Output directory (one run directory per variant).
+        #[arg(long, default_value = "trade")]
+        out: std::path::PathBuf,
+        #[arg(long, default_value_t = 4.0)]
+        downscale: f64,
+        #[arg(long, default_value = "quick")]
+        preset: String,
+        /// Training iterations of every variant.
+        #[arg(long, default_value_t = 300)]
+        iters: u32,
+        /// The voxel budget every variant trains under.
+        #[arg(long, default_value_t = 300_000)]
+        max_voxels: u64,
+        /// Final levels of the uniform variants (comma-separated).
+        #[arg(long, value_delimiter = ',', default_value = "6,7")]
+        uniform_levels: Vec<u32>,
+        #[arg(long, default_value = "val", value_parser = ["train", "val", "test"])]
+        split: String,
+        /// Config overrides applied to every variant.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        set: Vec<String>,
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
+        #[arg(long)]
+        json: bool,
+    },
 }
 
 fn parse_bits(s: &str) -> Result<Range<u32>, String> {
@@ -131,6 +163,35 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             warmup,
             json,
         } => bench_train(ctx, &data, downscale, &preset, &set, iters, warmup, json),
+        BenchCmd::Trade {
+            data,
+            out,
+            downscale,
+            preset,
+            iters,
+            max_voxels,
+            uniform_levels,
+            split,
+            set,
+            seed,
+            json,
+        } => super::trade::run(
+            ctx,
+            &super::trade::TradeArgs {
+                data,
+                out,
+                downscale,
+                preset,
+                iters,
+                max_voxels,
+                uniform_levels,
+                split,
+                set,
+                seed,
+                json,
+            },
+        )
+        .map(|_| ()),
         BenchCmd::Sort {
             n,
             bits,
