@@ -452,6 +452,20 @@ fn max_weight_and_interval_match_reference() {
                 reference_intervals(&scene, cam, &mut intervals);
             }
             let stats = pass.read().unwrap();
+            // The preprocess-only path (initialisation) gives the same intervals, bit for
+            // bit, and leaves the weights alone.
+            let mut geo_only = StatsPass::new(&ctx).unwrap();
+            geo_only.begin(scene.num_voxels() as u32).unwrap();
+            for cam in &cams {
+                geo_only
+                    .add_view_intervals(&mut renderer, &gpu, cam)
+                    .unwrap();
+            }
+            let g = geo_only.read().unwrap();
+            assert!(g.max_weight.iter().all(|&w| w == 0.0), "{what}");
+            let same =
+                |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+            assert!(same(&g.min_interval, &stats.min_interval), "{what}");
             let r = compare(&stats, &weights, &intervals, &what);
             println!("{what}: {r:?}");
             assert!(r.weighted > 10, "{what}: too few voxels contribute: {r:?}");

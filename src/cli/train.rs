@@ -228,6 +228,15 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     let train = data::load_split(&a.data, "train", a.downscale, cfg.background)?;
     std::fs::create_dir_all(run)
         .with_context(|| format!("cannot create run directory {}", run.display()))?;
+    if init.is_none() {
+        eprintln!(
+            "initialising: a level-{} grid ({} voxels), keeping those the {} training views \
+             see …",
+            cfg.grid_level,
+            1u64 << (3 * cfg.grid_level),
+            train.frames.len()
+        );
+    }
     let mut trainer = Trainer::new(ctx, cfg.clone(), &train, init)?;
     if let Some(state) = opt_state {
         trainer.set_optimizer_state(&state)?;
@@ -259,11 +268,11 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         );
     }
     eprintln!(
-        "training {} voxels (level-{} grid, voxels no camera sees removed; layout {:?}, \
+        "training {} voxels (level-{} grid, voxels no camera sees removed; layout {}, \
          budget {} voxels) on {} views of {}×{} for {} iterations → {}",
         trainer.voxels(),
         cfg.grid_level,
-        cfg.layout,
+        format!("{:?}", cfg.layout).to_lowercase(),
         trainer.budget(),
         train.frames.len(),
         train.width,

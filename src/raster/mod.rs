@@ -626,16 +626,30 @@ impl Renderer {
         Ok(())
     }
 
-    /// Records a frame into `cmd` (after [`Renderer::prepare`]). Reads no host data from
-    /// the device; check [`Renderer::stats`] once it completed.
-    pub fn record(
+    /// Records only the first stage of a frame (after [`Renderer::prepare`]): the frame's
+    /// parameter block and the per-voxel preprocess (projection, per-voxel tile-entry
+    /// counts, camera-relative centres). No image is produced; [`Renderer::last_frame`]
+    /// then describes this frame, for passes that only need which voxels it shows
+    /// (the adaptive layout's visibility test at initialisation).
+    pub fn record_preprocess(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        scene: &SceneGpu,
+        cam: &Camera,
+        opts: &RenderOptions,
+    ) -> Result<()> {
+        self.record_preprocess_stage(cmd, scene, cam, opts, None)
+            .map(|_| ())
+    }
+
+    fn record_preprocess_stage(
         &mut self,
         cmd: vk::CommandBuffer,
         scene: &SceneGpu,
         cam: &Camera,
         opts: &RenderOptions,
         mut ts: Option<&mut Timestamps>,
-    ) -> Result<FrameStats> {
+    ) -> Result<Plan> {
         let plan = self.plan(scene, cam, opts)?;
         if self.voxel_cap < scene.voxels
             || self.scan.is_none()
@@ -667,7 +681,6 @@ impl Renderer {
             let i = f.floor().clamp(-1073741824.0, 1073741824.0);
             (i as i32, f - i)
         });
-        let passes = plan.sort_bits.div_ceil(8);
         let (skeys, svals) = if plan.sorted_in_alt() {
             (&self.keys_alt, &self.vals_alt)
         } else {
@@ -763,9 +776,31 @@ impl Renderer {
         self.preprocess
             .dispatch(cmd, &pa, crate::gpu::grid_2d(n.div_ceil(256), max_x));
         recorder::barrier(&ctx, cmd);
-        if let Some(t) = ts.as_deref_mut() {
+        if let Some(t) = ts {
             t.mark(cmd, "preprocess");
         }
+        self.last = Some(plan);
+        Ok(plan)
+    }
+
+    /// Records a frame into `cmd` (after [`Renderer::prepare`]). Reads no host data from
+    /// the device; check [`Renderer::stats`] once it completed.
+    pub fn record(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        scene: &SceneGpu,
+        cam: &Camera,
+        opts: &RenderOptions,
+        mut ts: Option<&mut Timestamps>,
+    ) -> Result<FrameStats> {
+        let plan = self.record_preprocess_stage(cmd, scene, cam, opts, ts.as_deref_mut())?;
+        let ctx = self.ctx.clone();
+        let max_x = ctx.info().max_compute_work_group_count[0];
+        let n = scene.voxels;
+        let pa = ParamsPush {
+            params: self.params.address(),
+        };
+        let passes = plan.sort_bits.div_ceil(8);
         let scan = self.scan.as_ref().expect("prepared");
         scan.record(
             cmd,

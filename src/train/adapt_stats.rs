@@ -192,6 +192,38 @@ impl StatsPass {
     /// the voxel count given to [`StatsPass::begin`] and turn out complete. Needs a
     /// compute barrier after the frame (as [`Renderer::record`] leaves one); records one
     /// after the dispatch.
+    /// Folds one view into the min-interval accumulator only (the max weights are left
+    /// as they are): runs the frame's preprocess, not its sort or compositing, so it costs
+    /// a small fraction of [`StatsPass::add_view`]. The initialisation's visibility test.
+    pub fn add_view_intervals(
+        &mut self,
+        renderer: &mut Renderer,
+        scene: &SceneGpu,
+        cam: &Camera,
+    ) -> Result<()> {
+        if scene.voxels != self.voxels {
+            return Err(Error::Invalid(format!(
+                "StatsPass::add_view_intervals: the scene has {} voxels, the accumulators {} \
+                 (call begin() for this scene)",
+                scene.voxels, self.voxels
+            )));
+        }
+        if scene.voxels == 0 {
+            return Ok(());
+        }
+        let opts = RenderOptions {
+            samples: 1,
+            supersample: 1.0,
+        };
+        renderer.prepare(scene, cam, &opts)?;
+        let ctx = self.ctx.clone();
+        ctx.submit_and_wait(|cmd| {
+            renderer.record_preprocess(cmd, scene, cam, &opts)?;
+            let params = renderer.last_frame()?.params;
+            self.record_interval_fold(cmd, params)
+        })
+    }
+
     pub fn record_interval_fold(&self, cmd: vk::CommandBuffer, params: u64) -> Result<()> {
         let (_, mi) = self.buffers()?;
         let push = IntervalPush {

@@ -137,7 +137,6 @@ pub fn visible_only(
     ctx: &Context,
     scene: Scene,
     cams: &[Camera],
-    samples: u32,
     renderer: &mut Renderer,
     stats: &mut StatsPass,
     topology: &mut Topology,
@@ -145,7 +144,7 @@ pub fn visible_only(
     let gpu = SceneGpu::upload(ctx, &scene)?;
     stats.begin(gpu.voxels)?;
     for cam in cams {
-        stats.add_view(renderer, &gpu, cam, samples)?;
+        stats.add_view_intervals(renderer, &gpu, cam)?;
     }
     drop(gpu);
     let keep: Vec<bool> = stats
@@ -281,15 +280,7 @@ impl Trainer {
             None => {
                 check_grid_fits(ctx, &cfg)?;
                 let dense = uniform_grid(&cfg)?;
-                visible_only(
-                    ctx,
-                    dense,
-                    &cams,
-                    cfg.samples,
-                    &mut renderer,
-                    &mut stats,
-                    &mut topology,
-                )?
+                visible_only(ctx, dense, &cams, &mut renderer, &mut stats, &mut topology)?
             }
         };
         host.validate()?;
