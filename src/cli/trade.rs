@@ -117,8 +117,27 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
             ms_per_frame: rep.ms_per_frame,
             run,
         });
+        // Every finished variant is on disk at once: a long comparison stopped part-way
+        // keeps the rows it measured.
+        write_outputs(ctx, a, &rows)?;
     }
-    let table = table(ctx, a, &rows);
+    let doc = write_outputs(ctx, a, &rows)?;
+    if a.json {
+        println!("{doc}");
+    } else {
+        print!("{}", table(ctx, a, &rows));
+        println!("chart: {}", a.out.join("trade.png").display());
+    }
+    Ok(rows)
+}
+
+/// Writes `trade.md`, `trade.json` and `trade.png` for the rows so far; returns the JSON.
+fn write_outputs(
+    ctx: &Context,
+    a: &TradeArgs,
+    rows: &[TradeRow],
+) -> anyhow::Result<serde_json::Value> {
+    let table = table(ctx, a, rows);
     write(&a.out.join("trade.md"), table.as_bytes())?;
     let doc = serde_json::json!({
         "device": ctx.info().name,
@@ -135,15 +154,8 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
         &a.out.join("trade.json"),
         serde_json::to_string_pretty(&doc)?.as_bytes(),
     )?;
-    let png = a.out.join("trade.png");
-    save_grid(&charts(&rows, &a.split), &png, 640, 480)?;
-    if a.json {
-        println!("{doc}");
-    } else {
-        print!("{table}");
-        println!("chart: {}", png.display());
-    }
-    Ok(rows)
+    save_grid(&charts(rows, &a.split), &a.out.join("trade.png"), 640, 480)?;
+    Ok(doc)
 }
 
 fn read_config(run: &Path) -> anyhow::Result<serde_json::Value> {
