@@ -410,5 +410,57 @@ fn bench_trade_writes_table_json_and_chart() {
     );
     let png = image::open(out.join("trade.png")).expect("trade.png decodes");
     assert!(png.width() >= 640 && png.height() >= 480);
+
+    // --reuse keeps the variants an identical comparison finished and retrains one whose
+    // saved parameters differ (here: uniform-3's row claims another iteration count).
+    let row_file = out.join("uniform-3").join("trade_row.json");
+    let mut saved: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&row_file).unwrap()).unwrap();
+    assert_eq!(saved["key"]["iters"], 160);
+    saved["key"]["iters"] = 999.into();
+    std::fs::write(&row_file, saved.to_string()).unwrap();
+    let (ok, stdout2, err2) = svraster(&[
+        "bench",
+        "trade",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--downscale",
+        "1",
+        "--iters",
+        "160",
+        "--max-voxels",
+        "3000",
+        "--uniform-levels",
+        "3,4",
+        "--set",
+        "grid_level=3",
+        "--set",
+        "subdivide_percent=0.3",
+        "--reuse",
+        "--json",
+    ]);
+    assert!(ok, "bench trade --reuse failed: {stdout2}\n{err2}");
+    let reused: Vec<&str> = err2
+        .lines()
+        .filter(|l| l.contains("reusing the finished run"))
+        .collect();
+    assert_eq!(reused.len(), 2, "{err2}");
+    assert!(reused[0].starts_with("== adaptive ==") && reused[1].starts_with("== uniform-4 =="));
+    assert!(err2.contains("replacing the previous run") && err2.contains("== uniform-3 =="));
+    let doc2: serde_json::Value = serde_json::from_str(stdout2.trim()).expect("trade JSON");
+    let rows2 = doc2["rows"].as_array().unwrap();
+    assert_eq!(rows2.len(), 3);
+    // Reused rows are the saved ones, bit for bit (timings included).
+    assert_eq!(rows2[0], rows[0]);
+    assert_eq!(rows2[2], rows[2]);
+    // The retrained variant is a fresh, complete row.
+    assert_eq!(rows2[1]["variant"], "uniform-3");
+    assert_eq!(rows2[1]["max_level"], 3);
+    let v = rows2[1]["voxels"].as_u64().unwrap();
+    assert!(v > 0 && v <= 3000, "{}", rows2[1]);
+    let saved: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&row_file).unwrap()).unwrap();
+    assert_eq!(saved["key"]["iters"], 160);
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -113,6 +113,11 @@ pub enum BenchCmd {
         set: Vec<String>,
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Keep a variant that an earlier run of the same comparison (same data, split,
+        /// downscale, preset, iterations, seed, overrides and budget) finished, instead of
+        /// training it again: a long comparison stopped part-way continues.
+        #[arg(long)]
+        reuse: bool,
         #[arg(long)]
         json: bool,
     },
@@ -174,6 +179,7 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             split,
             set,
             seed,
+            reuse,
             json,
         } => super::trade::run(
             ctx,
@@ -188,6 +194,7 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
                 split,
                 set,
                 seed,
+                reuse,
                 json,
             },
         )

@@ -25,11 +25,13 @@ pub struct TradeArgs {
     pub split: String,
     pub set: Vec<String>,
     pub seed: u64,
+    /// Keep variants an identical earlier comparison finished (`VARIANT/trade_row.json`).
+    pub reuse: bool,
     pub json: bool,
 }
 
 /// One trained variant.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct TradeRow {
     pub variant: String,
     pub layout: String,
@@ -68,14 +70,28 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
     let mut rows = Vec::new();
     for (name, extra) in variants {
         let run = a.out.join(&name);
+        let mut set = a.set.clone();
+        set.extend(extra);
+        set.push(format!("max_voxels={}", a.max_voxels));
+        // What makes a finished variant reusable: everything its row depends on.
+        let key = serde_json::json!({
+            "data": a.data, "split": a.split, "downscale": a.downscale, "preset": a.preset,
+            "iters": a.iters, "seed": a.seed, "set": set,
+        });
+        let row_file = run.join("trade_row.json");
+        if a.reuse {
+            if let Some(row) = finished_row(&row_file, &key) {
+                eprintln!("== {name} == reusing the finished run in {}", run.display());
+                rows.push(row);
+                write_outputs(ctx, a, &rows)?;
+                continue;
+            }
+        }
         if run.join("config.json").exists() {
             eprintln!("replacing the previous run in {}", run.display());
             std::fs::remove_dir_all(&run)
                 .with_context(|| format!("cannot clear {}", run.display()))?;
         }
-        let mut set = a.set.clone();
-        set.extend(extra);
-        set.push(format!("max_voxels={}", a.max_voxels));
         eprintln!("== {name} ==");
         let summary = run_train(
             ctx,
@@ -104,7 +120,7 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
             false,
         )?;
         let cfg = read_config(&run)?;
-        rows.push(TradeRow {
+        let row = TradeRow {
             variant: name,
             layout: cfg["config"]["layout"].as_str().unwrap_or("?").to_string(),
             max_level: scene.max_level(),
@@ -116,7 +132,10 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
             train_s: summary.seconds,
             ms_per_frame: rep.ms_per_frame,
             run,
-        });
+        };
+        let saved = serde_json::json!({ "key": key, "row": row });
+        write(&row_file, serde_json::to_string_pretty(&saved)?.as_bytes())?;
+        rows.push(row);
         // Every finished variant is on disk at once: a long comparison stopped part-way
         // keeps the rows it measured.
         write_outputs(ctx, a, &rows)?;
@@ -156,6 +175,18 @@ fn write_outputs(
     )?;
     save_grid(&charts(rows, &a.split), &a.out.join("trade.png"), 640, 480)?;
     Ok(doc)
+}
+
+/// The row an earlier identical comparison saved for this variant, if its model is
+/// still there; anything else (no file, another key, unreadable) means train again.
+fn finished_row(row_file: &Path, key: &serde_json::Value) -> Option<TradeRow> {
+    let saved: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(row_file).ok()?).ok()?;
+    if &saved["key"] != key {
+        return None;
+    }
+    let row: TradeRow = serde_json::from_value(saved["row"].clone()).ok()?;
+    row.run.join("model.safetensors").exists().then_some(row)
 }
 
 fn read_config(run: &Path) -> anyhow::Result<serde_json::Value> {
