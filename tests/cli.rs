@@ -363,26 +363,32 @@ fn bench_trade_writes_table_json_and_chart() {
     )
     .unwrap();
     let out = dir.join("trade");
-    let (ok, stdout, err) = svraster(&[
-        "bench",
-        "trade",
-        data.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--downscale",
-        "1",
-        "--iters",
-        "160",
-        "--max-voxels",
-        "3000",
-        "--uniform-levels",
-        "3,4",
-        "--set",
-        "grid_level=3",
-        "--set",
-        "subdivide_percent=0.3",
-        "--json",
-    ]);
+    // The same comparison both times (the second run adds --reuse).
+    let trade = |extra: &[&str]| {
+        let mut args = vec![
+            "bench",
+            "trade",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--downscale",
+            "1",
+            "--iters",
+            "160",
+            "--max-voxels",
+            "3000",
+            "--uniform-levels",
+            "3,4",
+            "--set",
+            "grid_level=3",
+            "--set",
+            "subdivide_percent=0.3",
+            "--json",
+        ];
+        args.extend_from_slice(extra);
+        svraster(&args)
+    };
+    let (ok, stdout, err) = trade(&[]);
     assert!(ok, "bench trade failed: {stdout}\n{err}");
     let doc: serde_json::Value = serde_json::from_str(stdout.trim()).expect("trade JSON");
     let rows = doc["rows"].as_array().unwrap();
@@ -419,27 +425,7 @@ fn bench_trade_writes_table_json_and_chart() {
     assert_eq!(saved["key"]["iters"], 160);
     saved["key"]["iters"] = 999.into();
     std::fs::write(&row_file, saved.to_string()).unwrap();
-    let (ok, stdout2, err2) = svraster(&[
-        "bench",
-        "trade",
-        data.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-        "--downscale",
-        "1",
-        "--iters",
-        "160",
-        "--max-voxels",
-        "3000",
-        "--uniform-levels",
-        "3,4",
-        "--set",
-        "grid_level=3",
-        "--set",
-        "subdivide_percent=0.3",
-        "--reuse",
-        "--json",
-    ]);
+    let (ok, stdout2, err2) = trade(&["--reuse"]);
     assert!(ok, "bench trade --reuse failed: {stdout2}\n{err2}");
     let reused: Vec<&str> = err2
         .lines()
