@@ -68,6 +68,8 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut rows = Vec::new();
+    // The outputs as of the last finished variant (there is always one: `adaptive`).
+    let mut doc = serde_json::Value::Null;
     for (name, extra) in variants {
         let run = a.out.join(&name);
         let mut set = a.set.clone();
@@ -83,7 +85,7 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
             if let Some(row) = finished_row(&row_file, &key) {
                 eprintln!("== {name} == reusing the finished run in {}", run.display());
                 rows.push(row);
-                write_outputs(ctx, a, &rows)?;
+                doc = write_outputs(ctx, a, &rows)?;
                 continue;
             }
         }
@@ -138,9 +140,8 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
         rows.push(row);
         // Every finished variant is on disk at once: a long comparison stopped part-way
         // keeps the rows it measured.
-        write_outputs(ctx, a, &rows)?;
+        doc = write_outputs(ctx, a, &rows)?;
     }
-    let doc = write_outputs(ctx, a, &rows)?;
     if a.json {
         println!("{doc}");
     } else {
