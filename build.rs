@@ -30,6 +30,9 @@ fn main() {
          use crate::gpu::KernelSource;\n\n",
     );
     let mut all = Vec::new();
+    // (kernel path below glsl/ without extension, GLSL source): every .comp file, then the
+    // generated variants of the permutation table.
+    let mut sources: Vec<(String, String)> = Vec::new();
     for path in files
         .iter()
         .filter(|p| p.extension().is_some_and(|e| e == "comp"))
@@ -37,6 +40,18 @@ fn main() {
         let rel = path.strip_prefix(&glsl).unwrap();
         let rel_str = rel.to_string_lossy().replace('\\', "/");
         let source = std::fs::read_to_string(path).expect("read shader");
+        sources.push((rel_str.trim_end_matches(".comp").to_string(), source));
+    }
+    for (name, body, defines) in variants() {
+        let mut source = String::from("#version 460\n");
+        for (k, v) in &defines {
+            let _ = writeln!(source, "#define {k} {v}");
+        }
+        let _ = writeln!(source, "#include \"{body}\"");
+        sources.push((name, source));
+    }
+    for (kernel, source) in &sources {
+        let rel_str = format!("{kernel}.comp");
         let mut opts = shaderc::CompileOptions::new().unwrap();
         opts.set_target_env(
             shaderc::TargetEnv::Vulkan,
@@ -71,7 +86,7 @@ fn main() {
         });
         let display = format!("glsl/{rel_str}");
         match compiler.compile_into_spirv(
-            &source,
+            source,
             shaderc::ShaderKind::Compute,
             &display,
             "main",
@@ -92,7 +107,7 @@ fn main() {
                     "/// `{display}`\npub const {ident}: KernelSource = KernelSource {{\n    \
                      name: \"{name}\",\n    spirv: include_bytes!(\"{spv}\"),\n    \
                      local_size: [{lx}, {ly}, {lz}],\n    push_size: {ps},\n}};\n",
-                    name = rel_str.trim_end_matches(".comp"),
+                    name = kernel,
                     spv = spv_path.display(),
                     lx = refl.local_size[0],
                     ly = refl.local_size[1],
@@ -265,4 +280,61 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
         local_size: local_size.ok_or("no LocalSize execution mode (use literal local_size_x)")?,
         push_size,
     })
+}
+
+/// The permutation table: kernels compiled from one body in `glsl/lib/` with `#define`s
+/// (no stub `.comp` files). Name → body, defines.
+///
+/// - `raster/composite_k{K}[_maxw|_counters]`: forward compositing with K samples per
+///   segment; `_maxw` also folds per-voxel max blend weights (the adaptive statistics
+///   pass only); `_counters` also counts the walk's work (`bench --json`).
+/// - `train/backward_k{K}[_cas][_counters]`: its backward; `_cas` adds floats with a
+///   compare-and-swap loop (devices without float atomics).
+fn variants() -> Vec<Variant> {
+    variant_table()
+}
+
+/// A generated kernel: path below glsl/ without extension, body in glsl/lib/, defines.
+type Variant = (String, &'static str, Vec<(&'static str, String)>);
+
+fn variant_table() -> Vec<Variant> {
+    let mut v = Vec::new();
+    for k in 1..=3 {
+        for (suffix, mode) in [
+            ("", None),
+            ("_maxw", Some("TRACK_MAXW")),
+            ("_counters", Some("COUNTERS")),
+        ] {
+            let mut d = vec![("N_SAMP", k.to_string())];
+            if let Some(m) = mode {
+                d.push((m, "1".into()));
+            }
+            v.push((
+                format!("raster/composite_k{k}{suffix}"),
+                "composite.glsl",
+                d,
+            ));
+        }
+        for cas in [false, true] {
+            for counters in [false, true] {
+                let mut d = vec![("N_SAMP", k.to_string())];
+                if !cas {
+                    d.push(("FLOAT_ATOMICS", "1".into()));
+                }
+                if counters {
+                    d.push(("COUNTERS", "1".into()));
+                }
+                v.push((
+                    format!(
+                        "train/backward_k{k}{}{}",
+                        if cas { "_cas" } else { "" },
+                        if counters { "_counters" } else { "" }
+                    ),
+                    "backward.glsl",
+                    d,
+                ));
+            }
+        }
+    }
+    v
 }

@@ -1,5 +1,6 @@
-// Backward of the compositing (paper §3.2; DESIGN §4), shared by backward_k{1,2,3}
-// [_cas].comp, which define N_SAMP (samples per voxel segment) and FLOAT_ATOMICS.
+// Backward of the compositing (paper §3.2; DESIGN §4). Variants (build.rs permutation
+// table): N_SAMP samples per voxel segment; FLOAT_ATOMICS (else CAS float adds);
+// COUNTERS counts the walk's work into P.counters (bench only).
 //
 // One workgroup per 16x16 tile walks the tile's sorted list BACK TO FRONT, starting at
 // each pixel's last contributor with the exact final transmittance the forward kept.
@@ -11,18 +12,24 @@
 // because α ≤ 0.99999 and the forward stopped at T < 1e-4. r_k is the per-point RGB loss
 // λ_R·|c_k - gt|²/3; u_k = ∂L_dist/∂w_k uses W_k = 1 - T_k and the forward's Σ w·m.
 //
-// Per entry, the lanes of a subgroup reduce their voxel gradients with subgroupAdd and
-// one lane adds them to the voxel's 16-float record with global float atomics (a CAS
-// loop where the device lacks them). Chunks of the list are separate dispatches (last
-// chunk first), carrying per-pixel state (T, A, Σ_after w, Σ_after w·m) in `bstate`,
-// which keeps each invocation under llvmpipe's loop limit.
+// Each subgroup visits only the staged entries that can matter to its pixels (rectangle,
+// sign octant, before its last contributor: tile_walk.glsl), back to front. Per visited
+// entry the lanes reduce the voxel's 15 gradient components with a transposed
+// (reduce-scatter) butterfly of subgroup shuffles, after which every lane owns the
+// complete sum of one or two components and adds them with a single global float
+// atomic instruction across the subgroup (a CAS loop where the device lacks them)
+// instead of 15 reductions and 15 single-lane atomics. Chunks of the list are separate
+// dispatches (last chunk first), carrying per-pixel state (T, A, Σ_after w, Σ_after w·m)
+// in `bstate`, which keeps each invocation under llvmpipe's loop limit.
 #include "atomic_f32.glsl"
+#extension GL_KHR_shader_subgroup_shuffle : require
 #include "raster_params.glsl"
 #include "explin.glsl"
 #include "morton.glsl"
 #include "ray_aabb.glsl"
 #include "trilinear.glsl"
 #include "entry_stage.glsl"
+#include "tile_walk.glsl"
 #include "backward_params.glsl"
 layout(local_size_x = 256) in;
 
@@ -34,9 +41,51 @@ layout(push_constant) uniform Push {
 } pc;
 
 shared uint s_last;
+shared uint s_live;
 
 float explin_grad(float x) {
     return x > 1.1 ? 1.0 : explin(x) * 0.909090909091;
+}
+
+// Adds the subgroup's sum of r[0..15) (r[15] must be 0) to vgrad[VG_STRIDE·v + c].
+// Reduce-scatter: each xor step halves the components a lane holds and sums them with
+// its partner's; after the steps over lane bits 0, 1, 2 lane L holds components
+// c0, c0 + 1 with c0 = 8·L₀ + 4·L₁ + 2·L₂, summed over its 8-lane group; with ≥ 16
+// lanes a fourth step leaves one component c0 + L₃, and plain butterflies sum the
+// 16-lane groups. Every step is uniform (called in uniform control flow).
+void reduce_add(float r[16], uint v) {
+    BackParams B = pc.B;
+    uint lane = gl_SubgroupInvocationID;
+    bool hi = (lane & 1u) != 0u;
+    [[unroll]] for (uint i = 0u; i < 8u; ++i) {
+        float keep = hi ? r[i + 8u] : r[i];
+        float send = hi ? r[i] : r[i + 8u];
+        r[i] = keep + subgroupShuffleXor(send, 1u);
+    }
+    hi = (lane & 2u) != 0u;
+    [[unroll]] for (uint i = 0u; i < 4u; ++i) {
+        float keep = hi ? r[i + 4u] : r[i];
+        float send = hi ? r[i] : r[i + 4u];
+        r[i] = keep + subgroupShuffleXor(send, 2u);
+    }
+    hi = (lane & 4u) != 0u;
+    [[unroll]] for (uint i = 0u; i < 2u; ++i) {
+        float keep = hi ? r[i + 2u] : r[i];
+        float send = hi ? r[i] : r[i + 2u];
+        r[i] = keep + subgroupShuffleXor(send, 4u);
+    }
+    uint c0 = ((lane & 1u) << 3u) | ((lane & 2u) << 1u) | ((lane & 4u) >> 1u);
+    if (gl_SubgroupSize == 8u) {
+        atomic_add_f32(B.vgrad, VG_STRIDE * v + c0, r[0], B.lost);
+        atomic_add_f32(B.vgrad, VG_STRIDE * v + c0 + 1u, r[1], B.lost);
+    } else {
+        hi = (lane & 8u) != 0u;
+        float keep = hi ? r[1] : r[0];
+        float send = hi ? r[0] : r[1];
+        float x = keep + subgroupShuffleXor(send, 8u);
+        for (uint o = 16u; o < gl_SubgroupSize; o <<= 1u) x += subgroupShuffleXor(x, o);
+        if (lane < 16u) atomic_add_f32(B.vgrad, VG_STRIDE * v + c0 + (hi ? 1u : 0u), x, B.lost);
+    }
 }
 
 void main() {
@@ -94,30 +143,71 @@ void main() {
     end = min(end, max(s_last, start));
     uint n = end - start;
 
+#ifdef COUNTERS
+    // Per invocation (a dispatch stays far below 2^32 of each).
+    uint c_trips = 0u, c_useful = 0u, c_dense = 0u, c_pairs = 0u, c_cross = 0u, c_contrib = 0u,
+         c_build = 0u;
+#endif
+    uint sg = gl_SubgroupID;
+    uvec2 org = gl_WorkGroupID.xy * 16u;
+    walk_setup(l, tile_pixel(l), sign, inside);
+    uint sg_last = subgroupMax(inside ? last : 0u);
+    if (subgroupElect()) s_sglast[sg] = sg_last;
+    // Subgroups with a contributor in this chunk.
+    if (l == 0u) s_live = 0u;
+    barrier();
+    if (sg_last > start && subgroupElect()) atomicOr(s_live, 1u << sg);
+    barrier();
+    uint live = s_live;
+
     for (uint top = n; top > 0u;) {
         uint cnt = min(256u, top);
         uint base = top - cnt;  // batch [base, top) of the chunk
         top = base;
         barrier();
+        uint em = 0u;
         if (l < cnt) {
-            stage_entry(P, l, start + base + l);
+            uint val;
+            uvec2 box;
+            stage_entry(P, l, start + base + l, val, box);
+            em = entry_groups(val, box, org, live);
         }
+        s_emask[l] = em;
         barrier();
+        build_visit_before_last(l, start + base);
+        barrier();
+#ifdef COUNTERS
+        c_dense += cnt;
+        if ((live & (1u << sg)) != 0u) c_build += 1u;
+#endif
 
-        for (uint jj = cnt; jj > 0u; --jj) {
-            uint j = jj - 1u;
+        for (uint ww = 8u; ww > 0u; --ww) {
+            uint bits = s_visit[8u * sg + ww - 1u];
+            while (bits != 0u) {
+            uint b32 = uint(findMSB(bits));
+            bits &= ~(1u << b32);
+            uint j = 32u * (ww - 1u) + b32;
             uint idx = start + base + j;
-            bool need = inside && idx < last && entry_covers(j, sign, pix);
+            Entry e = load_entry(j);  // j is the same on every lane
+            bool need = inside && idx < last && covers(e.val, e.box, sign, pix);
+#ifdef COUNTERS
+            c_trips += 1u;
+            if (subgroupAny(need)) c_useful += 1u;
+            if (need) c_pairs += 1u;
+#endif
             if (!subgroupAny(need)) continue;
 
             // Recompute the forward quantities of this entry (identically to composite).
-            vec4 cs = s_cs[j];
+            vec4 cs = e.cs;
             float h = 0.5 * cs.w;
             vec2 ab = ray_aabb(cs.xyz - h, cs.xyz + h, rd, inv_rd);
             float a = max(ab.x, t_near), b = ab.y;
             need = need && a <= b;
+#ifdef COUNTERS
+            if (need) c_cross += 1u;
+#endif
             float g[8];
-            for (uint c = 0u; c < 8u; ++c) g[c] = s_geo[8u * j + c];
+            for (uint c = 0u; c < 8u; ++c) g[c] = e.g[c];
             float step_sz = (b - a) * (1.0 / float(N_SAMP));
             vec3 vmin = cs.xyz - h;
             float inv_size = 1.0 / cs.w;
@@ -135,14 +225,17 @@ void main() {
             float raw_alpha = 1.0 - exp(-vol);
             float alpha = min(MAX_ALPHA, raw_alpha);
             need = need && alpha >= MIN_ALPHA;
+#ifdef COUNTERS
+            if (need) c_contrib += 1u;
+#endif
 
             vec3 d_rgb = vec3(0.0), d_nrm = vec3(0.0);
             float d_geo[8];
             for (uint c = 0u; c < 8u; ++c) d_geo[c] = 0.0;
             float prio = 0.0;
             if (need) {
-                vec3 col = vec3(s_rgb[3u * j], s_rgb[3u * j + 1u], s_rgb[3u * j + 2u]);
-                vec3 nrm = vec3(s_nrm[3u * j], s_nrm[3u * j + 1u], s_nrm[3u * j + 2u]);
+                vec3 col = e.rgb;
+                vec3 nrm = e.nrm;
                 float Tk = T / (1.0 - alpha);
                 float w = Tk * alpha;
                 float mid = 0.5 * (a + b);
@@ -203,22 +296,36 @@ void main() {
                 ma += w * mid;
                 T = Tk;
             }
-            // One voxel per entry: reduce over the subgroup, one lane adds globally.
+            // One voxel per entry: reduce over the subgroup, every lane adds a component.
             if (!subgroupAny(need)) continue;
-            uint v = s_val[j] & 0x1fffffffu;
-            float red[VG_USED];
-            for (uint c = 0u; c < 8u; ++c) red[VG_GEO + c] = subgroupAdd(d_geo[c]);
+            float red[16];
+            for (uint c = 0u; c < 8u; ++c) red[VG_GEO + c] = d_geo[c];
             for (uint c = 0u; c < 3u; ++c) {
-                red[VG_RGB + c] = subgroupAdd(d_rgb[c]);
-                red[VG_NRM + c] = subgroupAdd(d_nrm[c]);
+                red[VG_RGB + c] = d_rgb[c];
+                red[VG_NRM + c] = d_nrm[c];
             }
-            red[VG_PRIO] = subgroupAdd(prio);
-            if (subgroupElect()) {
-                for (uint c = 0u; c < VG_USED; ++c)
-                    atomic_add_f32(B.vgrad, VG_STRIDE * v + c, red[c], B.lost);
+            red[VG_PRIO] = prio;
+            red[15] = 0.0;
+            reduce_add(red, e.val & 0x1fffffffu);
             }
         }
     }
+#ifdef COUNTERS
+    c_pairs = subgroupAdd(c_pairs);
+    c_cross = subgroupAdd(c_cross);
+    c_contrib = subgroupAdd(c_contrib);
+    if (subgroupElect()) {
+        U64s ctr = P.counters;
+        atomicAdd(ctr.v[CTR_BWD + CTR_TRIPS], uint64_t(c_trips));
+        atomicAdd(ctr.v[CTR_BWD + CTR_USEFUL], uint64_t(c_useful));
+        atomicAdd(ctr.v[CTR_BWD + CTR_DENSE], uint64_t(c_dense));
+        atomicAdd(ctr.v[CTR_BWD + CTR_PAIRS], uint64_t(c_pairs));
+        atomicAdd(ctr.v[CTR_BWD + CTR_CROSS], uint64_t(c_cross));
+        atomicAdd(ctr.v[CTR_BWD + CTR_CONTRIB], uint64_t(c_contrib));
+        atomicAdd(ctr.v[CTR_BWD + CTR_BUILD], uint64_t(c_build));
+        atomicAdd(ctr.v[CTR_BWD + CTR_SUBGROUPS], 1ul);
+    }
+#endif
 
     if (inside) {
         B.bstate.v[BS_T * npix + p] = T;

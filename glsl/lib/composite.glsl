@@ -1,19 +1,23 @@
-// Forward compositing of one 16x16 tile per workgroup (paper Eq. 1, supp. A.2-A.4),
-// shared by composite_k{1,2,3}.comp, which define N_SAMP (samples per voxel segment).
+// Forward compositing of one 16x16 tile per workgroup (paper Eq. 1, supp. A.2-A.4).
+// Variants (build.rs permutation table): N_SAMP samples per voxel segment; TRACK_MAXW
+// folds per-voxel max blend weights (the adaptive statistics pass only); COUNTERS counts
+// the walk's work into P.counters (bench only).
 //
 // Each dispatch handles one chunk of at most CHUNK entries of every tile's sorted list
 // and carries the per-pixel state (C, T, D, N, median) in the image buffers, so no
 // invocation's loops exceed llvmpipe's 65 535-iteration limit however long a tile's
 // list is; the host records enough chunks (stats report the longest list and flag a
-// shortfall). Entries are staged through shared memory 256 at a time; a pixel skips
-// entries of another ray-sign octant or whose pixel rectangle excludes it, and a
-// subgroup vote skips the intersection work when no lane needs it.
+// shortfall). Entries are staged through shared memory 256 at a time; each subgroup
+// visits only the staged entries whose pixel rectangle meets its block and whose sign
+// octant one of its live pixels has (tile_walk.glsl); a pixel then skips entries of
+// another octant or whose rectangle excludes it.
 #include "raster_params.glsl"
 #include "explin.glsl"
 #include "morton.glsl"
 #include "ray_aabb.glsl"
 #include "trilinear.glsl"
 #include "entry_stage.glsl"
+#include "tile_walk.glsl"
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
@@ -22,7 +26,7 @@ layout(push_constant) uniform Push {
     uint pad;
 } pc;
 
-shared uint s_alive;
+shared uint s_live;
 
 void main() {
     FrameParams P = pc.P;
@@ -65,8 +69,17 @@ void main() {
     // entries overflowed the key buffers (its tile lists miss voxels, which would
     // inflate the transmittance of those behind). A frame short of chunks composites
     // an exact prefix of every list, so its weights are the complete frame's.
-    bool track_maxw = uint64_t(P.maxw) != 0ul &&
-                      U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u] <= uint64_t(P.cfg.w);
+#ifdef TRACK_MAXW
+    bool track_maxw = U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u] <= uint64_t(P.cfg.w);
+#endif
+#ifdef COUNTERS
+    // Per invocation (a dispatch stays far below 2^32 of each).
+    uint c_trips = 0u, c_useful = 0u, c_dense = 0u, c_pairs = 0u, c_cross = 0u, c_contrib = 0u,
+         c_build = 0u;
+#endif
+    uint sg = gl_SubgroupID;
+    uvec2 org = gl_WorkGroupID.xy * 16u;
+    walk_setup(l, tile_pixel(l), sign, inside);
 
     uint chunk_size = P.cfg2.y;
     uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
@@ -79,32 +92,57 @@ void main() {
     uint n = end - start;
 
     for (uint base = 0u; base < n; base += 256u) {
-        // Stop when every pixel of the tile is done (workgroup-uniform decision).
+        // Subgroups with a pixel still compositing; stop when none is (uniform).
         barrier();
-        if (l == 0u) s_alive = 0u;
+        if (l == 0u) s_live = 0u;
         barrier();
-        if (!done) atomicAdd(s_alive, 1u);
+        bool sg_live = subgroupAny(!done);
+        if (sg_live && subgroupElect()) atomicOr(s_live, 1u << sg);
         barrier();
-        if (s_alive == 0u) break;
-
-        if (base + l < n) {
-            stage_entry(P, l, start + base + l);
-        }
-        barrier();
+        uint live = s_live;
+        if (live == 0u) break;
 
         uint cnt = min(256u, n - base);
-        for (uint j = 0u; j < cnt; ++j) {
-            bool need = !done && entry_covers(j, sign, pix);
-            if (!subgroupAny(need)) continue;
-            if (!need) continue;
-            vec4 cs = s_cs[j];
+        uint em = 0u;
+        if (l < cnt) {
+            uint val;
+            uvec2 box;
+            stage_entry(P, l, start + base + l, val, box);
+            em = entry_groups(val, box, org, live);
+        }
+        s_emask[l] = em;
+        barrier();
+        build_visit(l);
+        barrier();
+#ifdef COUNTERS
+        // What the full walk did: every subgroup, every staged entry, while any pixel
+        // of the tile was live.
+        c_dense += cnt;
+        if (sg_live) c_build += 1u;
+#endif
+
+        for (uint w = 0u; w < 8u; ++w) {
+            uint bits = s_visit[8u * sg + w];
+            while (bits != 0u) {
+            uint j = 32u * w + uint(findLSB(bits));
+            bits &= bits - 1u;
+            // j is the same on every lane (uniform control flow).
+            Entry e = load_entry(j);
+            bool need = !done && covers(e.val, e.box, sign, pix);
+#ifdef COUNTERS
+            c_trips += 1u;
+            if (subgroupAny(need)) c_useful += 1u;
+            if (need) c_pairs += 1u;
+#endif
+            vec4 cs = e.cs;
             float h = 0.5 * cs.w;
             vec2 ab = ray_aabb(cs.xyz - h, cs.xyz + h, rd, inv_rd);
             float a = max(ab.x, t_near), b = ab.y;
-            if (a > b) continue;
-
-            float g[8];
-            for (uint c = 0u; c < 8u; ++c) g[c] = s_geo[8u * j + c];
+            need = need && a <= b;
+#ifdef COUNTERS
+            if (need) c_cross += 1u;
+#endif
+            if (need) {
             float step_sz = (b - a) * (1.0 / float(N_SAMP));
             vec3 vmin = cs.xyz - h;
             float inv_size = 1.0 / cs.w;
@@ -113,27 +151,31 @@ void main() {
             for (int k = 0; k < N_SAMP; ++k) {
                 float t = a + (float(k) + 0.5) * step_sz;
                 vec3 q = (t * rd - vmin) * inv_size;
-                float local_vol = STEP_SZ_SCALE * step_sz * explin(trilinear(g, q));
+                float local_vol = STEP_SZ_SCALE * step_sz * explin(trilinear(e.g, q));
                 vol += local_vol;
                 la[k] = min(MAX_ALPHA, 1.0 - exp(-local_vol));
             }
             float alpha = min(MAX_ALPHA, 1.0 - exp(-vol));
-            if (alpha < MIN_ALPHA) continue;
-
-            float w = T * alpha;
+            if (alpha >= MIN_ALPHA) {
+#ifdef COUNTERS
+            c_contrib += 1u;
+#endif
+            float wt = T * alpha;
+#ifdef TRACK_MAXW
             if (track_maxw) {
-                // w >= 0: its bits order as the floats do. Read first, so most
+                // wt >= 0: its bits order as the floats do. Read first, so most
                 // entries skip the atomic.
-                uint vid = s_val[j] & 0x1fffffffu;
-                uint wb = floatBitsToUint(w);
+                uint vid = e.val & 0x1fffffffu;
+                uint wb = floatBitsToUint(wt);
                 if (P.maxw.v[vid] < wb) atomicMax(P.maxw.v[vid], wb);
             }
+#endif
             float mid = 0.5 * (a + b);
-            dist_l += w * (2.0 * (mid * (1.0 - T) - dist_m) + w * (b - a) * (1.0 / 3.0));
-            dist_m += w * mid;
+            dist_l += wt * (2.0 * (mid * (1.0 - T) - dist_m) + wt * (b - a) * (1.0 / 3.0));
+            dist_m += wt * mid;
             last = start + base + j + 1u;
-            C += w * vec3(s_rgb[3u * j], s_rgb[3u * j + 1u], s_rgb[3u * j + 2u]);
-            N += w * vec3(s_nrm[3u * j], s_nrm[3u * j + 1u], s_nrm[3u * j + 2u]);
+            C += wt * e.rgb;
+            N += wt * e.nrm;
             // Voxel depth (supp. A.4, Eqs. 19-21); K = 1 uses the segment midpoint.
             float dval;
 #if N_SAMP == 1
@@ -148,13 +190,36 @@ void main() {
 #endif
             D += T * dval;
             if (T > 0.5) {
-                med_id = s_val[j] & 0x1fffffffu;
+                med_id = e.val & 0x1fffffffu;
                 med_t = T;
             }
             T *= 1.0 - alpha;
             done = T < EARLY_STOP_T;
+            }
+            }
+            }
+            // A subgroup whose pixels are all done stops walking (uniform).
+            if (subgroupAll(done)) break;
         }
     }
+#ifdef COUNTERS
+    // Per subgroup: trips, useful trips, dense-walk trips and visit-set builds are
+    // uniform (counted once); pairs, crossings and contributions are per lane.
+    c_pairs = subgroupAdd(c_pairs);
+    c_cross = subgroupAdd(c_cross);
+    c_contrib = subgroupAdd(c_contrib);
+    if (subgroupElect()) {
+        U64s ctr = P.counters;
+        atomicAdd(ctr.v[CTR_FWD + CTR_TRIPS], uint64_t(c_trips));
+        atomicAdd(ctr.v[CTR_FWD + CTR_USEFUL], uint64_t(c_useful));
+        atomicAdd(ctr.v[CTR_FWD + CTR_DENSE], uint64_t(c_dense));
+        atomicAdd(ctr.v[CTR_FWD + CTR_PAIRS], uint64_t(c_pairs));
+        atomicAdd(ctr.v[CTR_FWD + CTR_CROSS], uint64_t(c_cross));
+        atomicAdd(ctr.v[CTR_FWD + CTR_CONTRIB], uint64_t(c_contrib));
+        atomicAdd(ctr.v[CTR_FWD + CTR_BUILD], uint64_t(c_build));
+        atomicAdd(ctr.v[CTR_FWD + CTR_SUBGROUPS], 1ul);
+    }
+#endif
 
     if (inside) {
         P.img.v[CH_R * npix + p] = C.x;

@@ -1,36 +1,75 @@
 // Staging of sorted (tile, sign) entries in shared memory, shared by the forward
-// composite and the training backward: per slot the entry value (sign << 29 | voxel),
-// the voxel's pixel rectangle, camera-relative centre and size, 8 corner densities,
-// colour and normal, as preprocess left them.
+// composite and the training backward: per slot ENTRY_WORDS words holding the entry
+// value (sign << 29 | voxel), the voxel's pixel rectangle, camera-relative centre and
+// size, 8 corner densities, colour and normal, as preprocess left them.
+//
+// A subgroup reads a slot with the same index on every lane (tile_walk.glsl), so
+// load_entry reads it lane-parallel (three loads, lane i reading words i, 8 + i and
+// 16 + i) and broadcasts the words: llvmpipe turns every shared load into a loop over
+// the lanes even when the address is uniform, so 21 uniform loads cost 21 such loops,
+// three lane-parallel loads plus 21 register broadcasts a fraction of that (measured in
+// the issue note). Needs a subgroup size of at least 8.
 #ifndef ENTRY_STAGE_GLSL
 #define ENTRY_STAGE_GLSL
+#extension GL_EXT_control_flow_attributes : require
 #include "raster_params.glsl"
 
-shared uint s_val[256];
-shared uvec2 s_box[256];
-shared vec4 s_cs[256];
-shared float s_geo[256 * 8];
-shared float s_rgb[256 * 3];
-shared float s_nrm[256 * 3];
+const uint ENTRY_WORDS = 24u;  // 21 used: val, box (2), cs (4), geo (8), rgb (3), nrm (3)
+const uint EW_VAL = 0u, EW_BOX = 1u, EW_CS = 3u, EW_GEO = 7u, EW_RGB = 15u, EW_NRM = 18u;
 
-// Copies sorted entry `index` into slot `slot`.
-void stage_entry(FrameParams P, uint slot, uint index) {
-    uint val = P.svals.v[index];
+shared float s_ent[256 * ENTRY_WORDS];
+
+struct Entry {
+    uint val;
+    uvec2 box;
+    vec4 cs;
+    float g[8];
+    vec3 rgb;
+    vec3 nrm;
+};
+
+// Copies sorted entry `index` into slot `slot`; returns its value and rectangle.
+void stage_entry(FrameParams P, uint slot, uint index, out uint val, out uvec2 box) {
+    val = P.svals.v[index];
     uint v = val & 0x1fffffffu;
-    s_val[slot] = val;
-    s_box[slot] = uvec2(P.bbox.v[2u * v], P.bbox.v[2u * v + 1u]);
-    s_cs[slot] = vec4(P.cs.v[4u * v], P.cs.v[4u * v + 1u], P.cs.v[4u * v + 2u], P.cs.v[4u * v + 3u]);
-    for (uint c = 0u; c < 8u; ++c) s_geo[8u * slot + c] = P.geo8.v[8u * v + c];
+    box = uvec2(P.bbox.v[2u * v], P.bbox.v[2u * v + 1u]);
+    uint o = ENTRY_WORDS * slot;
+    s_ent[o + EW_VAL] = uintBitsToFloat(val);
+    s_ent[o + EW_BOX] = uintBitsToFloat(box.x);
+    s_ent[o + EW_BOX + 1u] = uintBitsToFloat(box.y);
+    for (uint c = 0u; c < 4u; ++c) s_ent[o + EW_CS + c] = P.cs.v[4u * v + c];
+    for (uint c = 0u; c < 8u; ++c) s_ent[o + EW_GEO + c] = P.geo8.v[8u * v + c];
     for (uint c = 0u; c < 3u; ++c) {
-        s_rgb[3u * slot + c] = P.rgb.v[3u * v + c];
-        s_nrm[3u * slot + c] = P.nrm.v[3u * v + c];
+        s_ent[o + EW_RGB + c] = P.rgb.v[3u * v + c];
+        s_ent[o + EW_NRM + c] = P.nrm.v[3u * v + c];
     }
 }
 
-// Whether the entry in slot `j` is of this ray's sign octant and its rectangle holds pix.
-bool entry_covers(uint j, uint sign, uvec2 pix) {
-    uvec2 box = s_box[j];
-    return (s_val[j] >> 29u) == sign && pix.x >= (box.x & 0xffffu) && pix.x <= (box.y & 0xffffu) &&
+// The entry in slot `j`, which must be the same on every lane (uniform control flow).
+Entry load_entry(uint j) {
+    uint i = gl_SubgroupInvocationID & 7u;
+    uint o = ENTRY_WORDS * j;
+    float x0 = s_ent[o + i], x1 = s_ent[o + 8u + i], x2 = s_ent[o + 16u + i];
+    float w[24];
+    [[unroll]] for (uint c = 0u; c < 8u; ++c) {
+        w[c] = subgroupBroadcast(x0, c);
+        w[8u + c] = subgroupBroadcast(x1, c);
+        w[16u + c] = subgroupBroadcast(x2, c);
+    }
+    Entry e;
+    e.val = floatBitsToUint(w[EW_VAL]);
+    e.box = uvec2(floatBitsToUint(w[EW_BOX]), floatBitsToUint(w[EW_BOX + 1u]));
+    e.cs = vec4(w[EW_CS], w[EW_CS + 1u], w[EW_CS + 2u], w[EW_CS + 3u]);
+    [[unroll]] for (uint c = 0u; c < 8u; ++c) e.g[c] = w[EW_GEO + c];
+    e.rgb = vec3(w[EW_RGB], w[EW_RGB + 1u], w[EW_RGB + 2u]);
+    e.nrm = vec3(w[EW_NRM], w[EW_NRM + 1u], w[EW_NRM + 2u]);
+    return e;
+}
+
+// Whether an entry (value `val`, pixel rectangle `box`) is of this ray's sign octant
+// and its rectangle holds pix.
+bool covers(uint val, uvec2 box, uint sign, uvec2 pix) {
+    return (val >> 29u) == sign && pix.x >= (box.x & 0xffffu) && pix.x <= (box.y & 0xffffu) &&
            pix.y >= (box.x >> 16u) && pix.y <= (box.y >> 16u);
 }
 #endif

@@ -38,7 +38,19 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     // of the frames recorded with it set, as float bits folded in with atomicMax (the
     // adaptive pass's statistics, paper §3.2.2)
     U32s maxw;
+    // optional (0: off; read only by the COUNTERS kernel variants): work counters, u64
+    // words CTR_FWD + CTR_* (forward composite) and CTR_BWD + CTR_* (backward)
+    U64s counters;
 };
+
+// Work counters (bench): per walk, subgroup loop trips over entries; trips where at least
+// one lane's pixel needs the entry (rectangle and sign); trips the full walk (every
+// subgroup × every staged entry) would have made; (pixel, entry) pairs past the
+// rectangle and sign test; ray–voxel crossings; contributions (α ≥ MIN_ALPHA);
+// visit-set builds (one per subgroup and staged batch); subgroups dispatched.
+const uint CTR_TRIPS = 0u, CTR_USEFUL = 1u, CTR_DENSE = 2u, CTR_PAIRS = 3u, CTR_CROSS = 4u,
+           CTR_CONTRIB = 5u, CTR_BUILD = 6u, CTR_SUBGROUPS = 7u, CTR_FWD = 0u, CTR_BWD = 8u,
+           CTR_WORDS = 16u;
 
 // Words of the stats buffer.
 const uint STAT_TOTAL = 0u;      // u64: entries requested by preprocess

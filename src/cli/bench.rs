@@ -9,6 +9,7 @@ use anyhow::{bail, Context as _};
 use clap::Subcommand;
 use rand::{RngCore, SeedableRng};
 use svraster::gpu::{recorder, Context, Timestamps};
+use svraster::raster::{WalkCounters, WorkCounters};
 use svraster::sort::{passes_for, Count, RadixSort, SortScratch};
 
 use super::median;
@@ -433,6 +434,15 @@ fn bench_render(
             visible.push(st.visible_voxels as f64);
         }
     }
+    // Work counters from separate frames (the counting kernel is slower).
+    r.set_counters(true)?;
+    let mut counted = Vec::new();
+    for cam in &cams {
+        r.render_to_device(&gpu, cam, &opts, None)?;
+        counted.extend(r.counters()?);
+    }
+    r.set_counters(false)?;
+    let work = mean_counters(&counted);
     let (w, h) = (cams[0].width, cams[0].height);
     let stage_medians: Vec<(String, f64)> = order
         .iter()
@@ -457,6 +467,8 @@ fn bench_render(
             "entries_per_tile_median": median(&per_tile),
             "max_entries_per_tile": max_tile,
             "device": ctx.info().name,
+            "subgroup_size": ctx.info().subgroup_size,
+            "work_per_frame": walk_json(&work.forward),
         });
         println!("{obj}");
     } else {
@@ -483,6 +495,7 @@ fn bench_render(
             median(&dup),
             median(&per_tile)
         );
+        print_work(&work, ctx.info().subgroup_size);
     }
     Ok(())
 }
@@ -552,6 +565,15 @@ fn bench_train(
         }
         wall.push(wall_ms);
     }
+    // Work counters from separate iterations (the counting kernels are slower).
+    t.set_counters(true)?;
+    let mut counted = Vec::new();
+    for _ in 0..iters.min(3) {
+        t.step(false)?;
+        counted.extend(t.counters()?);
+    }
+    t.set_counters(false)?;
+    let work = mean_counters(&counted);
     t.check_finite()?;
     let med: Vec<(&str, f64)> = [
         "preprocess",
@@ -580,6 +602,8 @@ fn bench_train(
             "median_ms_per_iter": median(&total),
             "wall_median_ms_per_iter": median(&wall),
             "stages_median_ms": med.iter().map(|(k, v)| (k.to_string(), *v)).collect::<BTreeMap<_, _>>(),
+            "subgroup_size": ctx.info().subgroup_size,
+            "work_per_iter": work_json(&work),
         });
         println!("{obj}");
     } else {
@@ -602,6 +626,69 @@ fn bench_train(
         for (k, v) in med {
             println!("  {k:<11} {v:>9.2} ms");
         }
+        print_work(&work, ctx.info().subgroup_size);
     }
     Ok(())
+}
+
+/// Mean of the per-iteration (or per-frame) counters.
+fn mean_counters(c: &[WorkCounters]) -> WorkCounters {
+    fn mean(v: impl Iterator<Item = u64>, n: usize) -> u64 {
+        (v.sum::<u64>() as f64 / n.max(1) as f64).round() as u64
+    }
+    let n = c.len();
+    let walk = |f: fn(&WorkCounters) -> &WalkCounters| WalkCounters {
+        trips: mean(c.iter().map(|x| f(x).trips), n),
+        useful_trips: mean(c.iter().map(|x| f(x).useful_trips), n),
+        full_walk_trips: mean(c.iter().map(|x| f(x).full_walk_trips), n),
+        pairs: mean(c.iter().map(|x| f(x).pairs), n),
+        crossings: mean(c.iter().map(|x| f(x).crossings), n),
+        contributions: mean(c.iter().map(|x| f(x).contributions), n),
+        builds: mean(c.iter().map(|x| f(x).builds), n),
+        subgroups: mean(c.iter().map(|x| f(x).subgroups), n),
+    };
+    WorkCounters {
+        forward: walk(|x| &x.forward),
+        backward: walk(|x| &x.backward),
+    }
+}
+
+fn walk_json(w: &WalkCounters) -> serde_json::Value {
+    serde_json::json!({
+        "subgroup_trips": w.trips,
+        "useful_trips": w.useful_trips,
+        "full_walk_trips": w.full_walk_trips,
+        "pairs_past_rectangle": w.pairs,
+        "ray_voxel_crossings": w.crossings,
+        "contributions": w.contributions,
+        "visit_set_builds": w.builds,
+        "trips_per_useful_trip": w.trips_per_useful(),
+        "full_walk_trips_per_useful_trip": if w.useful_trips == 0 { 0.0 } else {
+            w.full_walk_trips as f64 / w.useful_trips as f64 },
+    })
+}
+
+fn work_json(w: &WorkCounters) -> serde_json::Value {
+    serde_json::json!({ "forward": walk_json(&w.forward), "backward": walk_json(&w.backward) })
+}
+
+fn print_work(w: &WorkCounters, subgroup: u32) {
+    println!(
+        "  work per iteration ({subgroup}-lane subgroups; trips = a subgroup visiting an entry):"
+    );
+    for (name, c) in [("forward", &w.forward), ("backward", &w.backward)] {
+        if c.subgroups == 0 {
+            continue;
+        }
+        println!(
+            "    {name:<8} trips {} ({:.2} per useful trip; the full walk: {} = {:.1}×), pairs {}, crossings {}, contributions {}",
+            c.trips,
+            c.trips_per_useful(),
+            c.full_walk_trips,
+            c.full_walk_trips as f64 / c.useful_trips.max(1) as f64,
+            c.pairs,
+            c.crossings,
+            c.contributions
+        );
+    }
 }

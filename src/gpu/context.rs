@@ -219,11 +219,12 @@ fn query_support(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> Support 
     let need_ops = vk::SubgroupFeatureFlags::BASIC
         | vk::SubgroupFeatureFlags::BALLOT
         | vk::SubgroupFeatureFlags::ARITHMETIC
-        | vk::SubgroupFeatureFlags::VOTE;
+        | vk::SubgroupFeatureFlags::VOTE
+        | vk::SubgroupFeatureFlags::SHUFFLE;
     if !sg.supported_stages.contains(vk::ShaderStageFlags::COMPUTE)
         || !sg.supported_operations.contains(need_ops)
     {
-        missing.push("subgroup basic/vote/ballot/arithmetic in compute");
+        missing.push("subgroup basic/vote/ballot/arithmetic/shuffle in compute");
     }
     if !(8..=128).contains(&sg.subgroup_size) {
         missing.push("subgroup size in 8..=128");
@@ -566,7 +567,7 @@ impl Context {
             "shaderInt64",
             "bufferDeviceAddress",
             "shaderBufferInt64Atomics",
-            "subgroup basic/vote/ballot/arithmetic in compute",
+            "subgroup basic/vote/ballot/arithmetic/shuffle in compute",
             "optional: VK_EXT_shader_atomic_float shaderBufferFloat32AtomicAdd",
             "optional: Vulkan 1.3 subgroupSizeControl + computeFullSubgroups",
         ]
@@ -606,7 +607,7 @@ impl Context {
             "shaderInt64",
             "bufferDeviceAddress",
             "shaderBufferInt64Atomics",
-            "subgroup basic/vote/ballot/arithmetic",
+            "subgroup basic/vote/ballot/arithmetic/shuffle",
         ]
         .iter()
         .map(|s| s.to_string())

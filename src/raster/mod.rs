@@ -242,8 +242,10 @@ struct FrameParams {
     aux: u64,
     /// Optional per-voxel max-weight target (0: off), see [`Renderer::set_max_weight_target`].
     maxw: u64,
+    /// Optional work counters (0: off), see [`Renderer::set_counters`].
+    counters: u64,
 }
-const _: () = assert!(std::mem::size_of::<FrameParams>() == 240 + 27 * 8);
+const _: () = assert!(std::mem::size_of::<FrameParams>() == 240 + 28 * 8);
 /// Planar channels of the per-pixel training aux buffer (`AUX_*` in raster_params.glsl).
 pub(crate) const AUX_CHANNELS: u64 = 3;
 
@@ -277,6 +279,68 @@ struct ChunkPush {
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_MAXW);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_MAXW);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_MAXW);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_COUNTERS);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_COUNTERS);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_COUNTERS);
+
+/// u64 words of the work-counter buffer (`CTR_WORDS` in raster_params.glsl).
+pub(crate) const COUNTER_WORDS: usize = 16;
+
+/// Work done by the tile walks of the frames (and backwards) recorded with counters on
+/// ([`Renderer::set_counters`]): one walk's totals over all tiles and chunks.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct WalkCounters {
+    /// Subgroup loop trips over entries (a subgroup visiting one entry).
+    pub trips: u64,
+    /// Trips in which at least one lane's pixel needed the entry (rectangle and sign).
+    pub useful_trips: u64,
+    /// Trips a full walk (every subgroup visits every entry of its tile) would make.
+    pub full_walk_trips: u64,
+    /// (pixel, entry) pairs past the rectangle and sign test.
+    pub pairs: u64,
+    /// Ray–voxel crossings (a non-empty ray segment).
+    pub crossings: u64,
+    /// Contributions (α ≥ 1e-5).
+    pub contributions: u64,
+    /// Visit-set builds (one per subgroup and staged batch of 256 entries).
+    pub builds: u64,
+    /// Subgroups dispatched (all chunks).
+    pub subgroups: u64,
+}
+
+impl WalkCounters {
+    fn from_words(w: &[u64]) -> WalkCounters {
+        WalkCounters {
+            trips: w[0],
+            useful_trips: w[1],
+            full_walk_trips: w[2],
+            pairs: w[3],
+            crossings: w[4],
+            contributions: w[5],
+            builds: w[6],
+            subgroups: w[7],
+        }
+    }
+
+    /// Trips per useful trip (1 is the floor; 0 when nothing was useful).
+    pub fn trips_per_useful(&self) -> f64 {
+        if self.useful_trips == 0 {
+            0.0
+        } else {
+            self.trips as f64 / self.useful_trips as f64
+        }
+    }
+}
+
+/// Counters of the forward composite and the training backward.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct WorkCounters {
+    pub forward: WalkCounters,
+    pub backward: WalkCounters,
+}
 
 /// A buffer that grows (by 1.5×) when more is needed.
 struct Grow {
@@ -347,6 +411,9 @@ pub struct FrameGeometry {
     pub supersampled: bool,
     /// Device address of the frame's parameter block (`FrameParams` in GLSL).
     pub params: u64,
+    /// Whether the frame was recorded with work counters on (the backward then counts
+    /// into the same buffer).
+    pub counters: bool,
 }
 
 /// The forward rasterizer with its kernels and growable frame buffers.
@@ -356,7 +423,8 @@ pub struct Renderer {
     setup: Kernel,
     emit: Kernel,
     ranges_k: Kernel,
-    composite: [Kernel; 3],
+    /// Composite variants: [plain, max-weight statistics, counters][samples - 1].
+    composite: [[Kernel; 3]; 3],
     finalize: Kernel,
     downsample: Kernel,
     scan: Option<PrefixScan>,
@@ -391,6 +459,7 @@ pub struct Renderer {
     params: Buffer,
     last: Option<Plan>,
     maxw_target: u64,
+    counters: Option<Buffer>,
 }
 
 impl Renderer {
@@ -402,9 +471,21 @@ impl Renderer {
             emit: Kernel::new(ctx, &kernels::RASTER_EMIT_KEYS)?,
             ranges_k: Kernel::new(ctx, &kernels::RASTER_TILE_RANGES)?,
             composite: [
-                Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K1)?,
-                Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K2)?,
-                Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K3)?,
+                [
+                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K1)?,
+                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K2)?,
+                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K3)?,
+                ],
+                [
+                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K1_MAXW)?,
+                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K2_MAXW)?,
+                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K3_MAXW)?,
+                ],
+                [
+                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K1_COUNTERS)?,
+                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K2_COUNTERS)?,
+                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K3_COUNTERS)?,
+                ],
             ],
             finalize: Kernel::new(ctx, &kernels::RASTER_FINALIZE)?,
             downsample: Kernel::new(ctx, &kernels::RASTER_DOWNSAMPLE)?,
@@ -444,7 +525,44 @@ impl Renderer {
             )?,
             last: None,
             maxw_target: 0,
+            counters: None,
         })
+    }
+
+    /// Turns the work counters on or off for the frames (and training backwards)
+    /// recorded from now on. With counters on, each frame zeroes them at its start and
+    /// the composite (and the backward recorded after it) adds its walk's work; read
+    /// them with [`Renderer::counters`]. The counting kernel variants cost extra
+    /// subgroup votes and atomics: for benchmarks, not for timing.
+    pub fn set_counters(&mut self, on: bool) -> Result<()> {
+        if on && self.counters.is_none() {
+            self.counters = Some(self.ctx.buffer(
+                "raster.counters",
+                COUNTER_WORDS as u64 * 8,
+                Memory::Device,
+            )?);
+        } else if !on {
+            self.counters = None;
+        }
+        Ok(())
+    }
+
+    /// Device address of the work counters (0: off), for the training backward.
+    pub(crate) fn counters_address(&self) -> u64 {
+        self.counters.as_ref().map_or(0, |b| b.address())
+    }
+
+    /// The work counters of the last frame (and backward) recorded with counters on;
+    /// `None` when they are off. The recorded work must have completed.
+    pub fn counters(&self) -> Result<Option<WorkCounters>> {
+        let Some(b) = &self.counters else {
+            return Ok(None);
+        };
+        let w: Vec<u64> = self.ctx.download(b, 0, COUNTER_WORDS)?;
+        Ok(Some(WorkCounters {
+            forward: WalkCounters::from_words(&w[0..8]),
+            backward: WalkCounters::from_words(&w[8..16]),
+        }))
     }
 
     /// Sets (or with `None` clears) the per-voxel max-weight target of the frames
@@ -757,6 +875,7 @@ impl Renderer {
             last: self.last_id.address(),
             aux: self.aux.address(),
             maxw: self.maxw_target,
+            counters: self.counters_address(),
         };
         let dev = ctx.device();
         let pa = ParamsPush {
@@ -770,6 +889,9 @@ impl Renderer {
         }
         recorder::fill(&ctx, cmd, &self.stats, 0, vk::WHOLE_SIZE, 0);
         recorder::fill(&ctx, cmd, self.ranges.get(), 0, plan.tiles as u64 * 8, 0);
+        if let Some(c) = &self.counters {
+            recorder::fill(&ctx, cmd, c, 0, vk::WHOLE_SIZE, 0);
+        }
         recorder::barrier(&ctx, cmd);
         let max_x = ctx.info().max_compute_work_group_count[0];
         let n = scene.voxels;
@@ -866,7 +988,15 @@ impl Renderer {
             plan.render_h.div_ceil(TILE),
             1,
         ];
-        let k = &self.composite[opts.samples as usize - 1];
+        // Counters win over statistics: both are for measurement, never mixed in a run.
+        let variant = if self.counters.is_some() {
+            2
+        } else if self.maxw_target != 0 {
+            1
+        } else {
+            0
+        };
+        let k = &self.composite[variant][opts.samples as usize - 1];
         for chunk in 0..plan.chunks {
             k.dispatch(
                 cmd,
@@ -919,6 +1049,7 @@ impl Renderer {
             tiles_y: p.render_h.div_ceil(TILE),
             supersampled: p.supersampled,
             params: self.params.address(),
+            counters: self.counters.is_some(),
         })
     }
 

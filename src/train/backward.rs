@@ -136,6 +136,8 @@ push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_CAS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_CAS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_CAS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_COUNTERS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_CAS_COUNTERS);
 
 /// Device buffer that only grows.
 fn ensure(ctx: &Context, slot: &mut Option<Buffer>, name: &str, bytes: u64) -> Result<()> {
@@ -152,7 +154,8 @@ fn ensure(ctx: &Context, slot: &mut Option<Buffer>, name: &str, bytes: u64) -> R
 pub struct Backward {
     ctx: Context,
     prepare_k: Kernel,
-    backward: [Kernel; 3],
+    /// [plain, work counters][samples - 1].
+    backward: [[Kernel; 3]; 2],
     voxel: Kernel,
     float_atomics: bool,
     chunk_size: u32,
@@ -169,12 +172,17 @@ impl Backward {
     /// `float_atomics` allows it, compare-and-swap otherwise.
     pub fn new(ctx: &Context, float_atomics: bool) -> Result<Backward> {
         let fa = float_atomics && ctx.info().float_atomic_add;
-        let (k, v) = if fa {
+        let (k, kc, v) = if fa {
             (
                 [
                     &kernels::TRAIN_BACKWARD_K1,
                     &kernels::TRAIN_BACKWARD_K2,
                     &kernels::TRAIN_BACKWARD_K3,
+                ],
+                [
+                    &kernels::TRAIN_BACKWARD_K1_COUNTERS,
+                    &kernels::TRAIN_BACKWARD_K2_COUNTERS,
+                    &kernels::TRAIN_BACKWARD_K3_COUNTERS,
                 ],
                 &kernels::TRAIN_VOXEL_BACKWARD,
             )
@@ -184,6 +192,11 @@ impl Backward {
                     &kernels::TRAIN_BACKWARD_K1_CAS,
                     &kernels::TRAIN_BACKWARD_K2_CAS,
                     &kernels::TRAIN_BACKWARD_K3_CAS,
+                ],
+                [
+                    &kernels::TRAIN_BACKWARD_K1_CAS_COUNTERS,
+                    &kernels::TRAIN_BACKWARD_K2_CAS_COUNTERS,
+                    &kernels::TRAIN_BACKWARD_K3_CAS_COUNTERS,
                 ],
                 &kernels::TRAIN_VOXEL_BACKWARD_CAS,
             )
@@ -197,9 +210,16 @@ impl Backward {
             ctx: ctx.clone(),
             prepare_k: Kernel::new(ctx, &kernels::TRAIN_GRAD_PREPARE)?,
             backward: [
-                Kernel::new(ctx, k[0])?,
-                Kernel::new(ctx, k[1])?,
-                Kernel::new(ctx, k[2])?,
+                [
+                    Kernel::new(ctx, k[0])?,
+                    Kernel::new(ctx, k[1])?,
+                    Kernel::new(ctx, k[2])?,
+                ],
+                [
+                    Kernel::new(ctx, kc[0])?,
+                    Kernel::new(ctx, kc[1])?,
+                    Kernel::new(ctx, kc[2])?,
+                ],
             ],
             voxel: Kernel::new(ctx, v)?,
             float_atomics: fa,
@@ -353,7 +373,7 @@ impl Backward {
         self.prepare_k
             .dispatch(cmd, &p2, crate::gpu::grid_2d(rpix.div_ceil(256), max_x));
         recorder::barrier(&ctx, cmd);
-        let k = &self.backward[samples as usize - 1];
+        let k = &self.backward[frame.counters as usize][samples as usize - 1];
         for chunk in (0..chunks).rev() {
             k.dispatch(
                 cmd,

@@ -392,6 +392,17 @@ impl Trainer {
         Ok(())
     }
 
+    /// Turns the work counters of the frame and backward walks on or off (benchmarks:
+    /// the counting kernels are slower; see [`Renderer::set_counters`]).
+    pub fn set_counters(&mut self, on: bool) -> Result<()> {
+        self.renderer.set_counters(on)
+    }
+
+    /// Work counters of the last iteration (forward and backward), when on.
+    pub fn counters(&self) -> Result<Option<crate::raster::WorkCounters>> {
+        self.renderer.counters()
+    }
+
     /// Stage times (ms) of the last iteration: the frame's stages, then losses,
     /// backward, optimizer.
     pub fn stage_times(&self) -> &StageTimes {

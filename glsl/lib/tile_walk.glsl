@@ -1,0 +1,89 @@
+// Per-subgroup walk of a tile's staged entries (shared by the forward composite and the
+// training backward): a subgroup visits only the entries that can matter to one of its
+// pixels, instead of every lane testing every entry of the tile.
+//
+// The lanes of a subgroup hold a rectangle of the 16×16 tile (tile_pixel's Morton order:
+// 4×2 pixels for 8 lanes, 8×4 for 32, 8×8 for 64). For every staged entry the thread
+// that staged it computes the set of subgroups that must visit it, as a bit mask
+// (subgroup count = 256 / subgroup size ≤ 32):
+//     groups(entry) = cols[x0][x1] & rows[y0][y1] & signs[sign] & live
+// cols[x0][x1] holds the subgroups whose block meets pixel columns x0..x1 (tile-local),
+// rows[y0][y1] likewise for rows: blocks are axis-aligned rectangles of a grid, so a
+// block meets the entry's pixel rectangle iff it meets both its column and row ranges.
+// signs[s] holds the subgroups with a pixel whose ray sign octant is s (an entry is only
+// ever composited by rays of its own octant); live the subgroups with a pixel still
+// compositing. The masks are then transposed into one 256-bit visit set per subgroup
+// (8 words; bit j: visit slot j), which the walk enumerates with findLSB (front to
+// back) or findMSB (back to front): depth order is the slot order, as before.
+//
+// Cost per batch of 256 entries: 32 unrolled mask reads per thread for the transpose,
+// then one loop trip per entry a subgroup visits. Lanes still test the exact rectangle
+// and sign per pixel (covers), so the images are bit-identical to a full walk.
+#ifndef TILE_WALK_GLSL
+#define TILE_WALK_GLSL
+#include "entry_stage.glsl"
+
+shared uint s_sgbox[32];       // per subgroup: x0 | x1 << 8 | y0 << 16 | y1 << 24
+shared uint s_colmask[256];    // [x0 * 16 + x1], x0 <= x1
+shared uint s_rowmask[256];    // [y0 * 16 + y1]
+shared uint s_signmask[8];
+shared uint s_emask[256];      // per staged slot: subgroups that visit it
+shared uint s_visit[32 * 8];   // per subgroup: 256-bit visit set
+shared uint s_sglast[32];      // backward: per subgroup, 1 + its last contributor
+
+// Once per dispatch, in uniform control flow: the subgroups' blocks, the column/row
+// tables and the sign masks. `lp` is the tile-local pixel of this invocation.
+void walk_setup(uint l, uvec2 lp, uint sign, bool inside) {
+    uint sg = gl_SubgroupID;
+    uint bx0 = subgroupMin(lp.x), bx1 = subgroupMax(lp.x);
+    uint by0 = subgroupMin(lp.y), by1 = subgroupMax(lp.y);
+    if (subgroupElect()) s_sgbox[sg] = bx0 | (bx1 << 8u) | (by0 << 16u) | (by1 << 24u);
+    if (l < 8u) s_signmask[l] = 0u;
+    barrier();
+    if (inside) atomicOr(s_signmask[sign], 1u << sg);
+    uint a = l >> 4u, b = l & 15u;
+    uint cm = 0u, rm = 0u;
+    for (uint s = 0u; s < gl_NumSubgroups; ++s) {
+        uint q = s_sgbox[s];
+        if (a <= ((q >> 8u) & 0xffu) && b >= (q & 0xffu)) cm |= 1u << s;
+        if (a <= (q >> 24u) && b >= ((q >> 16u) & 0xffu)) rm |= 1u << s;
+    }
+    s_colmask[l] = cm;
+    s_rowmask[l] = rm;
+    barrier();
+}
+
+// Subgroups of `live` that must visit an entry (value `val`, pixel rectangle `box`) of
+// the tile with origin `org`.
+uint entry_groups(uint val, uvec2 box, uvec2 org, uint live) {
+    ivec2 lo = ivec2(box.x & 0xffffu, box.x >> 16u) - ivec2(org);
+    ivec2 hi = ivec2(box.y & 0xffffu, box.y >> 16u) - ivec2(org);
+    if (hi.x < 0 || hi.y < 0 || lo.x > 15 || lo.y > 15) return 0u;
+    lo = max(lo, ivec2(0));
+    hi = min(hi, ivec2(15));
+    return live & s_colmask[lo.x * 16 + hi.x] & s_rowmask[lo.y * 16 + hi.y] &
+           s_signmask[val >> 29u];
+}
+
+// Transposes s_emask into the per-subgroup visit sets (call between barriers).
+void build_visit(uint l) {
+    uint s = l >> 3u, w = l & 7u;
+    if (s < gl_NumSubgroups) {
+        uint bits = 0u;
+        [[unroll]] for (uint i = 0u; i < 32u; ++i) bits |= ((s_emask[32u * w + i] >> s) & 1u) << i;
+        s_visit[l] = bits;
+    }
+}
+
+// The backward's transpose: also drops the slots at or after the subgroup's last
+// contributor (slot 0 is sorted entry `first`).
+void build_visit_before_last(uint l, uint first) {
+    uint s = l >> 3u, w = l & 7u;
+    if (s < gl_NumSubgroups) {
+        uint bits = 0u;
+        [[unroll]] for (uint i = 0u; i < 32u; ++i) bits |= ((s_emask[32u * w + i] >> s) & 1u) << i;
+        int keep = clamp(int(s_sglast[s]) - int(first) - int(32u * w), 0, 32);
+        s_visit[l] = keep == 32 ? bits : bits & ((1u << uint(keep)) - 1u);
+    }
+}
+#endif
