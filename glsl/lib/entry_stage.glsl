@@ -17,7 +17,7 @@
 const uint ENTRY_WORDS = 24u;  // 21 used: val, box (2), cs (4), geo (8), rgb (3), nrm (3)
 const uint EW_VAL = 0u, EW_BOX = 1u, EW_CS = 3u, EW_GEO = 7u, EW_RGB = 15u, EW_NRM = 18u;
 
-shared float s_ent[256 * ENTRY_WORDS];
+shared vec4 s_ent[256 * ENTRY_WORDS / 4u];
 
 struct Entry {
     uint val;
@@ -33,28 +33,34 @@ void stage_entry(FrameParams P, uint slot, uint index, out uint val, out uvec2 b
     val = P.svals.v[index];
     uint v = val & 0x1fffffffu;
     box = uvec2(P.bbox.v[2u * v], P.bbox.v[2u * v + 1u]);
-    uint o = ENTRY_WORDS * slot;
-    s_ent[o + EW_VAL] = uintBitsToFloat(val);
-    s_ent[o + EW_BOX] = uintBitsToFloat(box.x);
-    s_ent[o + EW_BOX + 1u] = uintBitsToFloat(box.y);
-    for (uint c = 0u; c < 4u; ++c) s_ent[o + EW_CS + c] = P.cs.v[4u * v + c];
-    for (uint c = 0u; c < 8u; ++c) s_ent[o + EW_GEO + c] = P.geo8.v[8u * v + c];
+    float w[24];
+    w[EW_VAL] = uintBitsToFloat(val);
+    w[EW_BOX] = uintBitsToFloat(box.x);
+    w[EW_BOX + 1u] = uintBitsToFloat(box.y);
+    for (uint c = 0u; c < 4u; ++c) w[EW_CS + c] = P.cs.v[4u * v + c];
+    for (uint c = 0u; c < 8u; ++c) w[EW_GEO + c] = P.geo8.v[8u * v + c];
     for (uint c = 0u; c < 3u; ++c) {
-        s_ent[o + EW_RGB + c] = P.rgb.v[3u * v + c];
-        s_ent[o + EW_NRM + c] = P.nrm.v[3u * v + c];
+        w[EW_RGB + c] = P.rgb.v[3u * v + c];
+        w[EW_NRM + c] = P.nrm.v[3u * v + c];
     }
+    w[21] = 0.0;
+    w[22] = 0.0;
+    w[23] = 0.0;
+    uint o = (ENTRY_WORDS / 4u) * slot;
+    [[unroll]] for (uint q = 0u; q < 6u; ++q)
+        s_ent[o + q] = vec4(w[4u * q], w[4u * q + 1u], w[4u * q + 2u], w[4u * q + 3u]);
 }
 
 // The entry in slot `j`, which must be the same on every lane (uniform control flow).
 Entry load_entry(uint j) {
-    uint i = gl_SubgroupInvocationID & 7u;
-    uint o = ENTRY_WORDS * j;
-    float x0 = s_ent[o + i], x1 = s_ent[o + 8u + i], x2 = s_ent[o + 16u + i];
+    vec4 x = s_ent[(ENTRY_WORDS / 4u) * j + min(gl_SubgroupInvocationID, 5u)];
     float w[24];
-    [[unroll]] for (uint c = 0u; c < 8u; ++c) {
-        w[c] = subgroupBroadcast(x0, c);
-        w[8u + c] = subgroupBroadcast(x1, c);
-        w[16u + c] = subgroupBroadcast(x2, c);
+    [[unroll]] for (uint q = 0u; q < 6u; ++q) {
+        vec4 b = subgroupBroadcast(x, q);
+        w[4u * q] = b.x;
+        w[4u * q + 1u] = b.y;
+        w[4u * q + 2u] = b.z;
+        w[4u * q + 3u] = b.w;
     }
     Entry e;
     e.val = floatBitsToUint(w[EW_VAL]);
