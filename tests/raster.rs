@@ -7,7 +7,7 @@
 mod common;
 
 use common::reference::{self, RefPixel};
-use common::{camera_inside, camera_outside, context, finish, random_scene, Rng};
+use common::{camera_inside, camera_outside, context, finish, random_scene, scattered_scene, Rng};
 use svraster::data::Camera;
 use svraster::raster::{Image, RenderOptions, Renderer, SceneGpu};
 use svraster::scene::{octpath_from_ijk, Scene};
@@ -357,6 +357,58 @@ fn level16_voxels_far_from_the_origin() {
     finish(&ctx);
 }
 
+/// Tiles whose entries mostly miss most of their pixels: a few hundred voxels of a few
+/// pixels each, scattered over 3×3 tiles. Each subgroup must visit only the entries whose
+/// rectangle meets its pixel block (the work counters show it), and the image must still
+/// match the f64 reference (a skipped entry a pixel needs would show there).
+#[test]
+fn sparse_tiles_walk_only_what_their_pixels_need() {
+    let ctx = context();
+    let mut r = Renderer::new(&ctx).unwrap();
+    r.set_counters(true).unwrap();
+    let mut rng = Rng(0x5a_0001);
+    for (i, k) in [1u32, 2, 3].into_iter().enumerate() {
+        let scene = scattered_scene(&mut rng, 300, 4, i as u32);
+        let cam = Camera::look_at(
+            [0.3, 0.2 + 0.1 * i as f64, 3.2],
+            [0.1, -0.2, 0.05],
+            [0.0, 1.0, 0.0],
+            0.9,
+            48,
+            40,
+        );
+        let img = render(&mut r, &ctx, &scene, &cam, k);
+        let refs = reference::render(&scene, &cam, k as usize);
+        assert_within(&compare(&img, &refs, "sparse tiles"), "sparse tiles");
+        let c = r.counters().unwrap().expect("counters on").forward;
+        let hits: usize = refs.iter().map(|p| p.hits).sum();
+        println!(
+            "K={k}: {c:?}; reference ray-voxel hits {hits}; full walk / trips {:.1}",
+            c.full_walk_trips as f64 / c.trips as f64
+        );
+        assert!(c.trips > 0 && c.useful_trips > 0, "{c:?}");
+        assert!(
+            c.trips_per_useful() <= 2.0,
+            "trips per useful trip {:.2} > 2",
+            c.trips_per_useful()
+        );
+        assert!(
+            c.full_walk_trips >= 4 * c.trips,
+            "the walk should skip most (subgroup, entry) pairs: {c:?}"
+        );
+        assert!(c.pairs >= c.crossings && c.crossings >= c.contributions);
+        // Every ray-voxel crossing of the reference is composited or tested (rays that
+        // stopped early walk fewer): crossings within 1 % of the reference's hits.
+        let rel = (c.crossings as f64 - hits as f64).abs() / hits as f64;
+        assert!(
+            rel <= 0.01,
+            "crossings {} vs reference hits {hits}",
+            c.crossings
+        );
+    }
+    finish(&ctx);
+}
+
 /// A tile whose list holds ~393 000 entries: a column of 2 × 65 536 level-16 voxels seen
 /// end-on (the centre pixel's ray runs along one column). Lavapipe stops any
 /// invocation's loops after 65 535 iterations, so this only passes if compositing is
@@ -388,6 +440,13 @@ fn tile_list_longer_than_the_loop_limit() {
     assert!(stats.max_tile_entries > 100_000, "{stats:?}");
     assert!(stats.chunks > 1 || !ctx.info().is_cpu);
     let refs = reference::render(&scene, &cam, 1);
+    // The centre pixel's subgroup visits every entry on its ray (65 536 of them, more
+    // than one invocation's loop limit): the walk is chunked like the list.
+    r.set_counters(true).unwrap();
+    let (img2, _) = r.render(&gpu, &cam, &RenderOptions::default()).unwrap();
+    assert_eq!(img2.rgb, img.rgb, "counting changes nothing");
+    let c = r.counters().unwrap().expect("counters on").forward;
+    assert!(c.trips >= 65536 && c.contributions >= 65536, "{c:?}");
     let centre = (8 * 17 + 8) as usize;
     assert_eq!(
         refs[centre].hits, 65536,

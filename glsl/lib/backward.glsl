@@ -111,6 +111,7 @@ void main() {
     vec3 dC = vec3(0.0), dN = vec3(0.0), gt = vec3(0.0);
     float dD = 0.0, mtot = 0.0;
     uint last = 0u;
+    float t_last = 1.0;
     float T = 1.0, A = 0.0, wa = 0.0, ma = 0.0;
     if (inside) {
         dC = vec3(B.dimg.v[DI_R * npix + p], B.dimg.v[DI_G * npix + p], B.dimg.v[DI_B * npix + p]);
@@ -119,6 +120,7 @@ void main() {
         gt = vec3(B.dimg.v[DI_GTR * npix + p], B.dimg.v[DI_GTG * npix + p], B.dimg.v[DI_GTB * npix + p]);
         mtot = P.aux.v[AUX_M * npix + p];
         last = P.last.v[p];
+        t_last = P.aux.v[AUX_TLAST * npix + p];
         if (pc.chunk + 1u == B.cfg.x) {
             T = P.aux.v[AUX_T * npix + p];
             A = B.dimg.v[DI_T * npix + p];
@@ -211,7 +213,7 @@ void main() {
             float step_sz = (b - a) * (1.0 / float(N_SAMP));
             vec3 vmin = cs.xyz - h;
             float inv_size = 1.0 / cs.w;
-            float vol = 0.0;
+            precise float vol = 0.0;  // as in the composite (bit-identical α)
             float la[N_SAMP], lv[N_SAMP], rho[N_SAMP];
             vec3 qs[N_SAMP];
             for (int k = 0; k < N_SAMP; ++k) {
@@ -222,7 +224,7 @@ void main() {
                 vol += lv[k];
                 la[k] = min(MAX_ALPHA, 1.0 - exp(-lv[k]));
             }
-            float raw_alpha = 1.0 - exp(-vol);
+            precise float raw_alpha = 1.0 - exp(-vol);
             float alpha = min(MAX_ALPHA, raw_alpha);
             need = need && alpha >= MIN_ALPHA;
 #ifdef COUNTERS
@@ -236,7 +238,10 @@ void main() {
             if (need) {
                 vec3 col = e.rgb;
                 vec3 nrm = e.nrm;
-                float Tk = T / (1.0 - alpha);
+                // The last contributor's T_k is stored by the forward: T / (1 - α) would
+                // amplify any difference in α by up to 1 / (1 - α) = 1e5. Before it,
+                // T_{k+1} ≥ 1e-4 (no early stop yet) bounds 1 / (1 - α_k) by 1e4·T_k.
+                float Tk = idx + 1u == last ? t_last : T / (1.0 - alpha);
                 float w = Tk * alpha;
                 float mid = 0.5 * (a + b);
                 float delta = b - a;

@@ -52,10 +52,12 @@ void main() {
     // Distortion (mip-NeRF 360) sums over contributors in order: Σ w·m and the loss value
     // Σ 2 w_k (m_k W_k - M_k) + w_k² δ_k / 3 with W_k = 1 - T_k, M_k = Σ_{j<k} w_j m_j.
     float dist_m = 0.0, dist_l = 0.0;
+    float t_last = 1.0;  // transmittance in front of the last contributor
     uint last = 0u;
     if (pc.chunk > 0u && inside) {
         dist_m = P.aux.v[AUX_M * npix + p];
         dist_l = P.aux.v[AUX_DIST * npix + p];
+        t_last = P.aux.v[AUX_TLAST * npix + p];
         last = P.last.v[p];
         C = vec3(P.img.v[CH_R * npix + p], P.img.v[CH_G * npix + p], P.img.v[CH_B * npix + p]);
         T = P.img.v[CH_T * npix + p];
@@ -146,7 +148,9 @@ void main() {
             float step_sz = (b - a) * (1.0 / float(N_SAMP));
             vec3 vmin = cs.xyz - h;
             float inv_size = 1.0 / cs.w;
-            float vol = 0.0;
+            // precise: α is recomputed by the backward, compiled separately; both must
+            // round identically (no contraction into FMAs one kernel does and one not).
+            precise float vol = 0.0;
             float la[N_SAMP];
             for (int k = 0; k < N_SAMP; ++k) {
                 float t = a + (float(k) + 0.5) * step_sz;
@@ -155,7 +159,7 @@ void main() {
                 vol += local_vol;
                 la[k] = min(MAX_ALPHA, 1.0 - exp(-local_vol));
             }
-            float alpha = min(MAX_ALPHA, 1.0 - exp(-vol));
+            precise float alpha = min(MAX_ALPHA, 1.0 - exp(-vol));
             if (alpha >= MIN_ALPHA) {
 #ifdef COUNTERS
             c_contrib += 1u;
@@ -174,6 +178,7 @@ void main() {
             dist_l += wt * (2.0 * (mid * (1.0 - T) - dist_m) + wt * (b - a) * (1.0 / 3.0));
             dist_m += wt * mid;
             last = start + base + j + 1u;
+            t_last = T;
             C += wt * e.rgb;
             N += wt * e.nrm;
             // Voxel depth (supp. A.4, Eqs. 19-21); K = 1 uses the segment midpoint.
@@ -234,6 +239,7 @@ void main() {
         P.med_t.v[p] = med_t;
         P.aux.v[AUX_M * npix + p] = dist_m;
         P.aux.v[AUX_DIST * npix + p] = dist_l;
+        P.aux.v[AUX_TLAST * npix + p] = t_last;
         P.last.v[p] = last;
     }
 }

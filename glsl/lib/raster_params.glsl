@@ -68,9 +68,11 @@ const uint FLAG_NEED_CHUNKS = 2u;     // a tile list is longer than the chunks r
 const uint CH_R = 0u, CH_G = 1u, CH_B = 2u, CH_T = 3u, CH_DEPTH = 4u, CH_DMED = 5u,
            CH_NX = 6u, CH_NY = 7u, CH_NZ = 8u, IMG_CHANNELS = 9u;
 // Channels of the per-pixel training aux buffer (render resolution): Σ w·m (weighted
-// segment midpoints), the distortion loss value, and the final transmittance (kept
-// exact: finalize turns CH_T into alpha = 1 - T, which loses a small T).
-const uint AUX_M = 0u, AUX_DIST = 1u, AUX_T = 2u, AUX_CHANNELS = 3u;
+// segment midpoints), the distortion loss value, the final transmittance (kept
+// exact: finalize turns CH_T into alpha = 1 - T, which loses a small T), and the
+// transmittance in front of the last contributor (the backward starts there instead
+// of dividing by 1 - α, which reaches 1e-5 for a near-opaque last voxel).
+const uint AUX_M = 0u, AUX_DIST = 1u, AUX_T = 2u, AUX_TLAST = 3u, AUX_CHANNELS = 4u;
 
 // Direction of pixel (px, py) (pixel centres at +0.5): unit world direction with
 // near-zero components flushed to exactly zero, and |camera-space direction| (whose

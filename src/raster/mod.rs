@@ -247,7 +247,7 @@ struct FrameParams {
 }
 const _: () = assert!(std::mem::size_of::<FrameParams>() == 240 + 28 * 8);
 /// Planar channels of the per-pixel training aux buffer (`AUX_*` in raster_params.glsl).
-pub(crate) const AUX_CHANNELS: u64 = 3;
+pub(crate) const AUX_CHANNELS: u64 = 4;
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]

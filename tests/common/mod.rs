@@ -195,3 +195,40 @@ pub fn camera_inside(rng: &mut Rng, scene: &Scene, w: u32, h: u32) -> Camera {
     let target = [eye[0] + d[0], eye[1] + d[1], eye[2] + d[2]];
     Camera::look_at(eye, target, rng.dir(), rng.range(0.8, 1.6), w, h)
 }
+
+/// Scattered small voxels: `n` distinct random voxels of `level` (≥ 6) in the unit-extent
+/// box, moderate densities (no ray reaches the early stop). Seen from outside at a few dozen pixels, each covers a few
+/// pixels, so most entries of a tile's list miss most of its pixels.
+pub fn scattered_scene(rng: &mut Rng, n: usize, level: u32, degree: u32) -> Scene {
+    let side = 1u64 << level;
+    let mut seen = std::collections::HashSet::new();
+    let mut paths = Vec::new();
+    while paths.len() < n {
+        let ijk = [
+            rng.below(side) as u32,
+            rng.below(side) as u32,
+            rng.below(side) as u32,
+        ];
+        if seen.insert(ijk) {
+            paths.push(octpath_from_ijk(ijk, level));
+        }
+    }
+    let levels = vec![level as u8; n];
+    let mut s = Scene::from_voxels([0.1, -0.2, 0.05], 2.0, degree, paths, levels, 0.0)
+        .expect("distinct voxels are valid");
+    for g in s.geo.iter_mut() {
+        *g = rng.range(-6.0, -1.5) as f32;
+    }
+    for c in s.sh0.iter_mut() {
+        *c = [
+            rng.range(-1.5, 1.5) as f32,
+            rng.range(-1.5, 1.5) as f32,
+            rng.range(-1.5, 1.5) as f32,
+        ];
+    }
+    for v in s.shs.iter_mut() {
+        *v = rng.range(-0.6, 0.6) as f32;
+    }
+    s.background = [0.4, 0.5, 0.6];
+    s
+}
