@@ -11,6 +11,14 @@ pub fn run(ctx: &Context, json: bool) -> anyhow::Result<()> {
     println!("driver              {} — {}", i.driver_name, i.driver_info);
     println!("Vulkan API          {}", i.api_version);
     println!("subgroup size       {}", i.subgroup_size);
+    println!(
+        "loop limit          {}",
+        if i.loop_limit() {
+            "assumed (CPU driver before Mesa 25): long tile lists are split into dispatches"
+        } else {
+            "none"
+        }
+    );
     println!("limits we depend on");
     println!("  maxStorageBufferRange        {:.0} MiB (not binding: kernels use buffer device addresses)", mib(i.max_storage_buffer_range));
     println!(

@@ -225,7 +225,7 @@ impl Backward {
             float_atomics: fa,
             // llvmpipe's loop limit (65 535 trips per invocation): the per-entry work has
             // more loops than the forward's (samples x corners, and a CAS loop per add).
-            chunk_size: if ctx.info().is_cpu {
+            chunk_size: if ctx.info().loop_limit() {
                 if fa {
                     2048
                 } else {

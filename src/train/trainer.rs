@@ -81,6 +81,10 @@ pub struct AdaptReport {
     /// Device memory allocated after the step (bytes).
     pub device_memory: u64,
     pub seconds: f64,
+    /// Of `seconds`: the statistics pass (every training view rendered).
+    pub stats_seconds: f64,
+    /// Of `seconds`: selection and topology change (host round trip, reinstall).
+    pub topology_seconds: f64,
 }
 
 /// Adam moments of one parameter group.
@@ -655,6 +659,7 @@ impl Trainer {
                 .add_view(&mut self.renderer, &self.scene, cam, cfg.samples)?;
         }
         let vs = self.stats.read()?;
+        let stats_seconds = t0.elapsed().as_secs_f64();
         self.scene.download_params(&self.ctx, &mut self.host)?;
         let priority: Vec<f32> = self.ctx.download(&self.grads.priority, 0, n)?;
         let keep: Vec<bool> = match step.prune_below {
@@ -757,6 +762,8 @@ impl Trainer {
             budget_reached,
             device_memory: self.ctx.memory_allocated(),
             seconds: t0.elapsed().as_secs_f64(),
+            stats_seconds,
+            topology_seconds: t0.elapsed().as_secs_f64() - stats_seconds,
         })
     }
 
