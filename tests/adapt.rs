@@ -83,8 +83,9 @@ fn adaptive_schedule_follows_the_paper_and_scales() {
     let last = s.adapt.iter().rfind(|a| a.subdivide).unwrap();
     assert_eq!(last.iter, 225);
     assert_eq!(s.adapt[0].prune_below, Some(1e-4));
-    // The paper's learning rate needs 400 iterations: a 300-iteration run never adapts.
-    c.set("lr_geo=0.025").unwrap();
+    // The paper's learning rate unscaled needs 400 iterations: a 300-iteration run
+    // never adapts.
+    c.set("lr_geo_scale_max=1").unwrap();
     assert!(c.schedule().adapt.is_empty());
     c.set("layout=fixed").unwrap();
     assert!(c.schedule().adapt.is_empty());

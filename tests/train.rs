@@ -95,6 +95,27 @@ fn schedule_is_fractions_of_the_run() {
     let d = TrainConfig::default();
     assert_eq!((d.beta1, d.beta2, d.eps), (0.1, 0.99, 1e-15));
     assert_eq!((d.lr_geo, d.lr_sh0, d.lr_shs), (0.025, 0.01, 0.00025));
+    // The density rate used scales with the run length: the paper's at 20 000 iterations
+    // and beyond, sqrt(20 000 / iters) times it for shorter runs, at most 4 times.
+    let mut c = TrainConfig::default();
+    for (iters, want) in [
+        (40_000, 0.025),
+        (20_000, 0.025),
+        (5_000, 0.05),
+        (3_000, 0.0645497),
+        (1_250, 0.1),
+        (300, 0.1),
+    ] {
+        c.iters = iters;
+        assert!(
+            (c.lr_geo_used() - want).abs() < 1e-6,
+            "{iters}: {}",
+            c.lr_geo_used()
+        );
+        assert_eq!(c.schedule().lr_geo, c.lr_geo_used());
+    }
+    c.lr_geo_scale_max = 1.0;
+    assert_eq!(c.lr_geo_used(), 0.025);
 }
 
 #[test]

@@ -3,10 +3,11 @@
 // compare-and-swap loop on the bits (any Vulkan device). Include this FIRST in a
 // kernel (it may enable an extension, which must precede any code).
 //
-// The CAS loop is bounded (llvmpipe's loop limit, DESIGN §LAVAPIPE) at 64 tries: one
-// lane per subgroup issues these adds, so a retry means another subgroup wrote the same
-// word between our read and swap; 64 consecutive losses do not happen in practice, and
-// a give-up is counted in `lost` (word 0 of the buffer passed) so it cannot go unseen.
+// The CAS loop is bounded (llvmpipe's loop limit, DESIGN §LAVAPIPE) at 64 tries: the
+// lanes of a subgroup add to distinct words (one gradient component each), so a retry
+// means another subgroup wrote the same word between our read and swap; 64 consecutive
+// losses do not happen in practice, and a give-up is counted in `lost` (word 0 of the
+// buffer passed) so it cannot go unseen.
 #ifndef ATOMIC_F32_GLSL
 #define ATOMIC_F32_GLSL
 #ifdef FLOAT_ATOMICS

@@ -210,15 +210,16 @@ void main() {
 #endif
             float g[8];
             for (uint c = 0u; c < 8u; ++c) g[c] = e.g[c];
-            float step_sz = (b - a) * (1.0 / float(N_SAMP));
+            precise float step_sz = (b - a) * (1.0 / float(N_SAMP));
             vec3 vmin = cs.xyz - h;
             float inv_size = 1.0 / cs.w;
             precise float vol = 0.0;  // as in the composite (bit-identical α)
             float la[N_SAMP], lv[N_SAMP], rho[N_SAMP];
             vec3 qs[N_SAMP];
             for (int k = 0; k < N_SAMP; ++k) {
-                float t = a + (float(k) + 0.5) * step_sz;
-                qs[k] = (t * rd - vmin) * inv_size;
+                precise float t = a + (float(k) + 0.5) * step_sz;
+                precise vec3 qk = (t * rd - vmin) * inv_size;
+                qs[k] = qk;
                 rho[k] = trilinear(g, qs[k]);
                 lv[k] = STEP_SZ_SCALE * step_sz * explin(rho[k]);
                 vol += lv[k];

@@ -145,7 +145,7 @@ void main() {
             if (need) c_cross += 1u;
 #endif
             if (need) {
-            float step_sz = (b - a) * (1.0 / float(N_SAMP));
+            precise float step_sz = (b - a) * (1.0 / float(N_SAMP));
             vec3 vmin = cs.xyz - h;
             float inv_size = 1.0 / cs.w;
             // precise: α is recomputed by the backward, compiled separately; both must
@@ -153,8 +153,8 @@ void main() {
             precise float vol = 0.0;
             float la[N_SAMP];
             for (int k = 0; k < N_SAMP; ++k) {
-                float t = a + (float(k) + 0.5) * step_sz;
-                vec3 q = (t * rd - vmin) * inv_size;
+                precise float t = a + (float(k) + 0.5) * step_sz;
+                precise vec3 q = (t * rd - vmin) * inv_size;
                 float local_vol = STEP_SZ_SCALE * step_sz * explin(trilinear(e.g, q));
                 vol += local_vol;
                 la[k] = min(MAX_ALPHA, 1.0 - exp(-local_vol));

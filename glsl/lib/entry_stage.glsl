@@ -4,11 +4,11 @@
 // size, 8 corner densities, colour and normal, as preprocess left them.
 //
 // A subgroup reads a slot with the same index on every lane (tile_walk.glsl), so
-// load_entry reads it lane-parallel (three loads, lane i reading words i, 8 + i and
-// 16 + i) and broadcasts the words: llvmpipe turns every shared load into a loop over
-// the lanes even when the address is uniform, so 21 uniform loads cost 21 such loops,
-// three lane-parallel loads plus 21 register broadcasts a fraction of that (measured in
-// the issue note). Needs a subgroup size of at least 8.
+// load_entry reads it lane-parallel (one vec4 load, lane i < 6 reading words 4i..4i+3)
+// and broadcasts the six vec4s: llvmpipe turns every shared load into a loop over the
+// lanes even when the address is uniform, so 21 uniform loads cost 21 such loops, one
+// lane-parallel load plus six broadcasts a fraction of that (forward 133 → 53 ms on lego
+// 100², README). Needs a subgroup size of at least 8.
 #ifndef ENTRY_STAGE_GLSL
 #define ENTRY_STAGE_GLSL
 #extension GL_EXT_control_flow_attributes : require

@@ -9,6 +9,7 @@ const float EARLY_STOP_T = 0.0001;
 
 // explin(x) = x if x > 1.1 else exp(x / 1.1 - 1 + ln 1.1)
 float explin(float x) {
-    return x > 1.1 ? x : exp(x * 0.909090909091 - 0.904689820196);
+    precise float r = x > 1.1 ? x : exp(x * 0.909090909091 - 0.904689820196);  // see trilinear
+    return r;
 }
 #endif

@@ -16,6 +16,11 @@
 // (8 words; bit j: visit slot j), which the walk enumerates with findLSB (front to
 // back) or findMSB (back to front): depth order is the slot order, as before.
 //
+// Assumes full subgroups of a power-of-two size ≥ 8 (at most 32 subgroups per
+// workgroup): the pipeline requires full subgroups where the device offers
+// computeFullSubgroups, and a 256-invocation workgroup splits into full subgroups of any
+// power-of-two size on every driver we know.
+//
 // Cost per batch of 256 entries: 32 unrolled mask reads per thread for the transpose,
 // then one loop trip per entry a subgroup visits. Lanes still test the exact rectangle
 // and sign per pixel (covers), so the images are bit-identical to a full walk.

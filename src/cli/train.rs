@@ -259,17 +259,18 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         atomic_write(&cfg_path, serde_json::to_string_pretty(&doc)?.as_bytes())?;
         let _ = std::fs::remove_file(run.join("stats.jsonl"));
     }
-    if ctx.info().is_cpu && !a.resume && a.preset == "synthetic" {
+    if ctx.info().is_cpu && !a.resume && a.preset == "synthetic" && cfg.iters > 5_000 {
         eprintln!(
-            "note: {} is a CPU device; the synthetic preset (supersampling 1.5, the paper's \
-             density learning rate) needs thousands of iterations at seconds each here. \
-             --preset quick converges in a few hundred",
-            ctx.info().name
+            "note: {} is a CPU device: {} iterations take hours here (0.2–1 s each at \
+             100²–200²); a few thousand (--iters 3000) reach most of the quality",
+            ctx.info().name,
+            cfg.iters
         );
     }
     eprintln!(
         "training {} voxels (level-{} grid, voxels no camera sees removed; layout {}, \
-         budget {} voxels) on {} views of {}×{} for {} iterations → {}",
+         budget {} voxels) on {} views of {}×{} for {} iterations (density learning rate \
+         {}) → {}",
         trainer.voxels(),
         cfg.grid_level,
         format!("{:?}", cfg.layout).to_lowercase(),
@@ -278,6 +279,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         train.width,
         train.height,
         cfg.iters,
+        trainer.schedule().lr_geo,
         run.display()
     );
     let summary = train_loop(&mut trainer, run)?;

@@ -390,6 +390,8 @@ struct Plan {
     chunks: u32,
     sort_bits: u32,
     supersampled: bool,
+    /// Recorded with work counters on.
+    counters: bool,
 }
 
 impl Plan {
@@ -460,6 +462,7 @@ pub struct Renderer {
     last: Option<Plan>,
     maxw_target: u64,
     counters: Option<Buffer>,
+    counters_on: bool,
 }
 
 impl Renderer {
@@ -530,6 +533,7 @@ impl Renderer {
             last: None,
             maxw_target: 0,
             counters: None,
+            counters_on: false,
         })
     }
 
@@ -537,7 +541,9 @@ impl Renderer {
     /// recorded from now on. With counters on, each frame zeroes them at its start and
     /// the composite (and the backward recorded after it) adds its walk's work; read
     /// them with [`Renderer::counters`]. The counting kernel variants cost extra
-    /// subgroup votes and atomics: for benchmarks, not for timing.
+    /// subgroup votes and atomics: for benchmarks, not for timing. They do not fold
+    /// max-weight statistics: recording a frame with both set is an error. The buffer
+    /// stays allocated once made (work in flight may still write it).
     pub fn set_counters(&mut self, on: bool) -> Result<()> {
         if on && self.counters.is_none() {
             self.counters = Some(self.ctx.buffer(
@@ -545,21 +551,23 @@ impl Renderer {
                 COUNTER_WORDS as u64 * 8,
                 Memory::Device,
             )?);
-        } else if !on {
-            self.counters = None;
         }
+        self.counters_on = on;
         Ok(())
     }
 
     /// Device address of the work counters (0: off), for the training backward.
     pub(crate) fn counters_address(&self) -> u64 {
-        self.counters.as_ref().map_or(0, |b| b.address())
+        match (&self.counters, self.counters_on) {
+            (Some(b), true) => b.address(),
+            _ => 0,
+        }
     }
 
     /// The work counters of the last frame (and backward) recorded with counters on;
     /// `None` when they are off. The recorded work must have completed.
     pub fn counters(&self) -> Result<Option<WorkCounters>> {
-        let Some(b) = &self.counters else {
+        let (Some(b), true) = (&self.counters, self.counters_on) else {
             return Ok(None);
         };
         let w: Vec<u64> = self.ctx.download(b, 0, COUNTER_WORDS)?;
@@ -717,6 +725,7 @@ impl Renderer {
                 tile_bits + level_bits
             },
             supersampled: render_w != cam.width || render_h != cam.height,
+            counters: self.counters_on,
         })
     }
 
@@ -773,6 +782,13 @@ impl Renderer {
         mut ts: Option<&mut Timestamps>,
     ) -> Result<Plan> {
         let plan = self.plan(scene, cam, opts)?;
+        if plan.counters && self.maxw_target != 0 {
+            return Err(Error::Invalid(
+                "work counters and max-weight statistics cannot be recorded in one frame \
+                 (the counting kernels do not fold weights): turn the counters off"
+                    .into(),
+            ));
+        }
         if self.voxel_cap < scene.voxels
             || self.scan.is_none()
             || self.sort.is_none()
@@ -893,7 +909,7 @@ impl Renderer {
         }
         recorder::fill(&ctx, cmd, &self.stats, 0, vk::WHOLE_SIZE, 0);
         recorder::fill(&ctx, cmd, self.ranges.get(), 0, plan.tiles as u64 * 8, 0);
-        if let Some(c) = &self.counters {
+        if let (Some(c), true) = (&self.counters, plan.counters) {
             recorder::fill(&ctx, cmd, c, 0, vk::WHOLE_SIZE, 0);
         }
         recorder::barrier(&ctx, cmd);
@@ -993,7 +1009,7 @@ impl Renderer {
             1,
         ];
         // Counters win over statistics: both are for measurement, never mixed in a run.
-        let variant = if self.counters.is_some() {
+        let variant = if plan.counters {
             2
         } else if self.maxw_target != 0 {
             1
@@ -1053,7 +1069,7 @@ impl Renderer {
             tiles_y: p.render_h.div_ceil(TILE),
             supersampled: p.supersampled,
             params: self.params.address(),
-            counters: self.counters.is_some(),
+            counters: p.counters,
         })
     }
 

@@ -137,7 +137,11 @@ push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_CAS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_CAS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_CAS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_COUNTERS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_COUNTERS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_COUNTERS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_CAS_COUNTERS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_CAS_COUNTERS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_CAS_COUNTERS);
 
 /// Device buffer that only grows.
 fn ensure(ctx: &Context, slot: &mut Option<Buffer>, name: &str, bytes: u64) -> Result<()> {

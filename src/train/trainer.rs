@@ -556,7 +556,7 @@ impl Trainer {
                     &self.grads.geo,
                     &self.mom[0],
                     self.scene.grid_points as u64,
-                    cfg.lr_geo,
+                    self.schedule.lr_geo,
                 ),
                 (
                     &self.scene.sh0,
