@@ -21,11 +21,13 @@ done
 python3 - <<'PY'
 import json
 rows = [json.loads(l) for l in open("bench_train.jsonl")]
-print("| image | voxels | ms/iter | preprocess | sort | forward | losses | backward | optimizer |")
-print("|---|---|---|---|---|---|---|---|---|")
+print("| image | voxels | ms/iter | preprocess | sort | forward | losses | backward | optimizer | trips / useful | full walk / useful |")
+print("|---|---|---|---|---|---|---|---|---|---|---|")
 for r in rows:
     s = r["stages_median_ms"]
+    w = r.get("work_per_iter", {}).get("forward", {})
     print(f"| {r['image'][0]}² | {r['voxels']} | {r['median_ms_per_iter']:.0f} | " +
           " | ".join(f"{s.get(k, 0):.1f}" for k in
-                     ["preprocess", "sort", "forward", "losses", "backward", "optimizer"]) + " |")
+                     ["preprocess", "sort", "forward", "losses", "backward", "optimizer"]) +
+          f" | {w.get('trips_per_useful_trip', 0):.2f} | {w.get('full_walk_trips_per_useful_trip', 0):.1f} |")
 PY
