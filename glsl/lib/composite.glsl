@@ -105,14 +105,7 @@ void main() {
         if (live == 0u) break;
 
         uint cnt = min(256u, n - base);
-        uint em = 0u;
-        if (l < cnt) {
-            uint val;
-            uvec2 box;
-            stage_entry(P, l, start + base + l, val, box);
-            em = entry_groups(val, box, org, live);
-        }
-        s_emask[l] = em;
+        stage_slot(P, l, cnt, start + base + l, org, live);
         barrier();
         build_visit(l);
         barrier();
@@ -208,22 +201,9 @@ void main() {
         }
     }
 #ifdef COUNTERS
-    // Per subgroup: trips, useful trips, dense-walk trips and visit-set builds are
-    // uniform (counted once); pairs, crossings and contributions are per lane.
-    c_pairs = subgroupAdd(c_pairs);
-    c_cross = subgroupAdd(c_cross);
-    c_contrib = subgroupAdd(c_contrib);
-    if (subgroupElect()) {
-        U64s ctr = P.counters;
-        atomicAdd(ctr.v[CTR_FWD + CTR_TRIPS], uint64_t(c_trips));
-        atomicAdd(ctr.v[CTR_FWD + CTR_USEFUL], uint64_t(c_useful));
-        atomicAdd(ctr.v[CTR_FWD + CTR_DENSE], uint64_t(c_dense));
-        atomicAdd(ctr.v[CTR_FWD + CTR_PAIRS], uint64_t(c_pairs));
-        atomicAdd(ctr.v[CTR_FWD + CTR_CROSS], uint64_t(c_cross));
-        atomicAdd(ctr.v[CTR_FWD + CTR_CONTRIB], uint64_t(c_contrib));
-        atomicAdd(ctr.v[CTR_FWD + CTR_BUILD], uint64_t(c_build));
-        atomicAdd(ctr.v[CTR_FWD + CTR_SUBGROUPS], 1ul);
-    }
+    U64s ctr = P.counters;  // a writable copy of the address (the block is readonly)
+    flush_counters(ctr, CTR_FWD, c_trips, c_useful, c_dense, c_pairs, c_cross, c_contrib,
+                   c_build);
 #endif
 
     if (inside) {

@@ -70,6 +70,41 @@ uint entry_groups(uint val, uvec2 box, uvec2 org, uint live) {
            s_signmask[val >> 29u];
 }
 
+// Stages sorted entry `index` in slot l (when l < cnt) and records the subgroups of
+// `live` that must visit it in s_emask[l] (0 for the slots past cnt).
+void stage_slot(FrameParams P, uint l, uint cnt, uint index, uvec2 org, uint live) {
+    uint em = 0u;
+    if (l < cnt) {
+        uint val;
+        uvec2 box;
+        stage_entry(P, l, index, val, box);
+        em = entry_groups(val, box, org, live);
+    }
+    s_emask[l] = em;
+}
+
+#ifdef COUNTERS
+// Adds one subgroup's work counters to the walk's words at `base` (CTR_FWD or CTR_BWD),
+// in uniform control flow. Trips, useful trips, full-walk trips and builds are uniform
+// (added once); pairs, crossings and contributions are per lane (summed).
+void flush_counters(U64s ctr, uint base, uint trips, uint useful, uint dense, uint pairs,
+                    uint cross, uint contrib, uint build) {
+    pairs = subgroupAdd(pairs);
+    cross = subgroupAdd(cross);
+    contrib = subgroupAdd(contrib);
+    if (subgroupElect()) {
+        atomicAdd(ctr.v[base + CTR_TRIPS], uint64_t(trips));
+        atomicAdd(ctr.v[base + CTR_USEFUL], uint64_t(useful));
+        atomicAdd(ctr.v[base + CTR_DENSE], uint64_t(dense));
+        atomicAdd(ctr.v[base + CTR_PAIRS], uint64_t(pairs));
+        atomicAdd(ctr.v[base + CTR_CROSS], uint64_t(cross));
+        atomicAdd(ctr.v[base + CTR_CONTRIB], uint64_t(contrib));
+        atomicAdd(ctr.v[base + CTR_BUILD], uint64_t(build));
+        atomicAdd(ctr.v[base + CTR_SUBGROUPS], 1ul);
+    }
+}
+#endif
+
 // Transposes s_emask into the per-subgroup visit sets (call between barriers).
 void build_visit(uint l) {
     uint s = l >> 3u, w = l & 7u;

@@ -27,6 +27,10 @@
 
 use ash::vk;
 
+mod counters;
+pub(crate) use counters::COUNTER_WORDS;
+pub use counters::{WalkCounters, WorkCounters};
+
 use crate::data::Camera;
 use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
 use crate::push_constants;
@@ -285,62 +289,6 @@ push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_MAXW);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_COUNTERS);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_COUNTERS);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_COUNTERS);
-
-/// u64 words of the work-counter buffer (`CTR_WORDS` in raster_params.glsl).
-pub(crate) const COUNTER_WORDS: usize = 16;
-
-/// Work done by the tile walks of the frames (and backwards) recorded with counters on
-/// ([`Renderer::set_counters`]): one walk's totals over all tiles and chunks.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
-pub struct WalkCounters {
-    /// Subgroup loop trips over entries (a subgroup visiting one entry).
-    pub trips: u64,
-    /// Trips in which at least one lane's pixel needed the entry (rectangle and sign).
-    pub useful_trips: u64,
-    /// Trips a full walk (every subgroup visits every entry of its tile) would make.
-    pub full_walk_trips: u64,
-    /// (pixel, entry) pairs past the rectangle and sign test.
-    pub pairs: u64,
-    /// Ray–voxel crossings (a non-empty ray segment).
-    pub crossings: u64,
-    /// Contributions (α ≥ 1e-5).
-    pub contributions: u64,
-    /// Visit-set builds (one per subgroup and staged batch of 256 entries).
-    pub builds: u64,
-    /// Subgroups dispatched (all chunks).
-    pub subgroups: u64,
-}
-
-impl WalkCounters {
-    fn from_words(w: &[u64]) -> WalkCounters {
-        WalkCounters {
-            trips: w[0],
-            useful_trips: w[1],
-            full_walk_trips: w[2],
-            pairs: w[3],
-            crossings: w[4],
-            contributions: w[5],
-            builds: w[6],
-            subgroups: w[7],
-        }
-    }
-
-    /// Trips per useful trip (1 is the floor; 0 when nothing was useful).
-    pub fn trips_per_useful(&self) -> f64 {
-        if self.useful_trips == 0 {
-            0.0
-        } else {
-            self.trips as f64 / self.useful_trips as f64
-        }
-    }
-}
-
-/// Counters of the forward composite and the training backward.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
-pub struct WorkCounters {
-    pub forward: WalkCounters,
-    pub backward: WalkCounters,
-}
 
 /// A buffer that grows (by 1.5×) when more is needed.
 struct Grow {

@@ -154,6 +154,13 @@ pub fn random_scene(rng: &mut Rng, max_level: u32, degree: u32) -> Scene {
     for g in s.geo.iter_mut() {
         *g = random_density(rng);
     }
+    random_colours(rng, &mut s);
+    s.background = [rng.unit() as f32, rng.unit() as f32, rng.unit() as f32];
+    s
+}
+
+/// Random SH: DC in [-1.5, 1.5], higher degrees in [-0.6, 0.6].
+fn random_colours(rng: &mut Rng, s: &mut Scene) {
     for c in s.sh0.iter_mut() {
         *c = [
             rng.range(-1.5, 1.5) as f32,
@@ -164,8 +171,6 @@ pub fn random_scene(rng: &mut Rng, max_level: u32, degree: u32) -> Scene {
     for v in s.shs.iter_mut() {
         *v = rng.range(-0.6, 0.6) as f32;
     }
-    s.background = [rng.unit() as f32, rng.unit() as f32, rng.unit() as f32];
-    s
 }
 
 /// A camera outside the scene cube looking at its centre.
@@ -219,16 +224,7 @@ pub fn scattered_scene(rng: &mut Rng, n: usize, level: u32, degree: u32) -> Scen
     for g in s.geo.iter_mut() {
         *g = rng.range(-6.0, -1.5) as f32;
     }
-    for c in s.sh0.iter_mut() {
-        *c = [
-            rng.range(-1.5, 1.5) as f32,
-            rng.range(-1.5, 1.5) as f32,
-            rng.range(-1.5, 1.5) as f32,
-        ];
-    }
-    for v in s.shs.iter_mut() {
-        *v = rng.range(-0.6, 0.6) as f32;
-    }
+    random_colours(rng, &mut s);
     s.background = [0.4, 0.5, 0.6];
     s
 }
