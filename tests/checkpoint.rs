@@ -116,6 +116,7 @@ fn scene_from(rng: &mut Pcg64, voxels: &[(u64, u8)], sh_degree: u32) -> Scene {
     )
     .unwrap();
     s.background = [any_finite(rng), any_finite(rng), any_finite(rng)];
+    s.supersample = 1.0 + 7.0 * rng.gen::<f32>();
     for g in &mut s.geo {
         *g = any_finite(rng);
     }
@@ -158,6 +159,11 @@ fn assert_same(a: &Scene, b: &Scene) {
     assert_eq!(a.extent.to_bits(), b.extent.to_bits(), "extent");
     assert_eq!(a.sh_degree, b.sh_degree, "sh_degree");
     assert_eq!(bits(&a.background), bits(&b.background), "background");
+    assert_eq!(
+        a.supersample.to_bits(),
+        b.supersample.to_bits(),
+        "supersample"
+    );
     assert_eq!(a.octpath, b.octpath, "octpath");
     assert_eq!(a.octlevel, b.octlevel, "octlevel");
     assert_eq!(a.grid_keys, b.grid_keys, "grid_keys");
@@ -393,6 +399,7 @@ fn byte_layout() {
     )
     .unwrap();
     scene.background = [0.0, 0.5, 1.0];
+    scene.supersample = 1.5;
     for (i, g) in scene.geo.iter_mut().enumerate() {
         *g = i as f32 - 3.5;
     }
@@ -421,6 +428,7 @@ fn byte_layout() {
     assert_eq!(meta["scene_extent"], "4");
     assert_eq!(meta["sh_degree"], "1");
     assert_eq!(meta["background"], "[0,0.5,1]");
+    assert_eq!(meta["supersample"], "1.5");
     assert!(meta.values().all(Value::is_string));
     let center: Vec<f32> = serde_json::from_str(meta["scene_center"].as_str().unwrap()).unwrap();
     assert_eq!(center, vec![0.5, -1.0, 2.25]);
@@ -927,6 +935,16 @@ fn corrupt_metadata() {
     for (key, v, needles) in cases {
         corrupt(|m, _| m[*key] = v.clone(), needles);
     }
+    for v in ["0.5", "0", "9", "-1", "inf", "NaN", "x"] {
+        corrupt(|m, _| m["supersample"] = json!(v), &["`supersample`"]);
+    }
+    // Files written before `supersample` existed load with none (1).
+    let mut old_scene = base_scene();
+    old_scene.supersample = 1.5;
+    let (mut meta, ts) = tensors(&to_bytes(&old_scene).unwrap());
+    meta.as_object_mut().unwrap().remove("supersample");
+    let back = from_bytes(&assemble(&meta, &ts)).unwrap();
+    assert_eq!(back.supersample, 1.0);
     // Unknown metadata keys are fine (free-form metadata).
     let (mut meta, ts) = tensors(&to_bytes(&base_scene()).unwrap());
     meta["comment"] = json!("trained for 20k iterations");

@@ -261,6 +261,24 @@ fn train_interrupt_resume_eval_and_bench() {
     let ssim = v["ssim"].as_f64().unwrap();
     assert!(psnr > 10.0 && (0.0..=1.0).contains(&ssim), "{v}");
     assert!(v["ms_per_frame"].as_f64().unwrap() > 0.0);
+    // Renders at the model's supersampling (the quick preset trains without), unless
+    // --ss says otherwise; a model trained with ss 1.5 renders at 1.5 by default.
+    assert_eq!(v["supersample"], 1.0, "{v}");
+    let mut scene = svraster::scene::checkpoint::load(&run.join("model.safetensors")).unwrap();
+    scene.supersample = 1.5;
+    let ss_model = dir.join("ss15.safetensors");
+    svraster::scene::checkpoint::save(&scene, &ss_model).unwrap();
+    let sm = ss_model.to_str().unwrap();
+    for (extra, want) in [(None, 1.5), (Some("1"), 1.0), (Some("2"), 2.0)] {
+        let mut a = vec!["eval", sm, "--data", ds, "--split", "val", "--json"];
+        if let Some(x) = extra {
+            a.extend(["--ss", x]);
+        }
+        let (ok, out, err) = svraster(&a);
+        assert!(ok, "eval failed: {out}\n{err}");
+        let v: serde_json::Value = serde_json::from_str(out.trim()).expect("eval JSON");
+        assert_eq!(v["supersample"], want, "{extra:?}: {v}");
+    }
 
     // bench train
     let (ok, out, err) = svraster(&[

@@ -106,9 +106,10 @@ enum Command {
         /// Print one JSON object (psnr, ssim, views, ms_per_frame, per_view …) on stdout.
         #[arg(long)]
         json: bool,
-        /// Supersampling factor of the renders.
-        #[arg(long, default_value_t = 1.0)]
-        ss: f32,
+        /// Supersampling factor of the renders (default: the model's, i.e. the `ss` it was
+        /// trained with; 1 = none).
+        #[arg(long)]
+        ss: Option<f32>,
     },
     /// Render every frame of a dataset split with a model.
     Render {
@@ -135,9 +136,10 @@ enum Command {
         /// Samples per ray-voxel segment (1..=3).
         #[arg(long, default_value_t = 1)]
         samples: u32,
-        /// Supersampling factor (>= 1; anti-aliased downsample).
-        #[arg(long, default_value_t = 1.0)]
-        ss: f32,
+        /// Supersampling factor (>= 1; anti-aliased downsample; default: the model's, i.e.
+        /// the `ss` it was trained with).
+        #[arg(long)]
+        ss: Option<f32>,
     },
     /// Benchmarks.
     Bench {
@@ -212,18 +214,7 @@ pub fn run() -> anyhow::Result<()> {
             downscale,
             json,
             ss,
-        } => train::run_eval(
-            &ctx,
-            &model,
-            &data,
-            &split,
-            downscale,
-            &svraster::raster::RenderOptions {
-                samples: 1,
-                supersample: ss,
-            },
-            json,
-        )?,
+        } => train::run_eval(&ctx, &model, &data, &split, downscale, ss, json)?,
         Command::Render {
             model,
             data,
@@ -244,10 +235,8 @@ pub fn run() -> anyhow::Result<()> {
                 out,
                 depth,
                 normal,
-                opts: svraster::raster::RenderOptions {
-                    samples,
-                    supersample: ss,
-                },
+                samples,
+                ss,
             },
         )?,
     }

@@ -136,7 +136,10 @@ pub struct RenderArgs {
     pub out: PathBuf,
     pub depth: bool,
     pub normal: bool,
-    pub opts: RenderOptions,
+    /// Samples per ray–voxel segment.
+    pub samples: u32,
+    /// Supersampling (None: the model's, [`svraster::scene::Scene::supersample`]).
+    pub ss: Option<f32>,
 }
 
 /// Renders every frame of a split; returns (mean PSNR against the photos, ms per frame).
@@ -149,13 +152,17 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create output directory {}", a.out.display()))?;
     scene.validate()?;
+    let opts = RenderOptions {
+        samples: a.samples,
+        supersample: a.ss.unwrap_or(scene.supersample),
+    };
     let gpu = SceneGpu::upload(ctx, &scene)?;
     let mut r = Renderer::new(ctx)?;
     let mut total_psnr = 0.0;
     let mut ms = 0.0;
     for (i, f) in ds.frames.iter().enumerate() {
         let t = Instant::now();
-        let (img, _) = r.render(&gpu, &f.camera, &a.opts)?;
+        let (img, _) = r.render(&gpu, &f.camera, &opts)?;
         ms += t.elapsed().as_secs_f64() * 1e3;
         let p = psnr(&img.rgb, &f.rgb);
         total_psnr += p;

@@ -118,7 +118,7 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
             &a.data,
             &a.split,
             a.downscale,
-            &RenderOptions::default(),
+            &RenderOptions::for_scene(&scene),
             false,
         )?;
         let cfg = read_config(&run)?;

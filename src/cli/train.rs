@@ -417,6 +417,8 @@ pub struct EvalReport {
     pub width: u32,
     pub height: u32,
     pub voxels: usize,
+    /// The supersampling the views were rendered with.
+    pub supersample: f32,
     pub per_view: Vec<(String, f64, f64)>,
 }
 
@@ -479,6 +481,7 @@ pub fn evaluate(
         width: ds.width,
         height: ds.height,
         voxels: scene.num_voxels(),
+        supersample: opts.supersample,
         per_view,
     })
 }
@@ -490,17 +493,21 @@ pub fn run_eval(
     data: &Path,
     split: &str,
     downscale: f64,
-    opts: &RenderOptions,
+    ss: Option<f32>,
     json: bool,
 ) -> anyhow::Result<()> {
     let scene = load_model(model)?;
-    let rep = evaluate(ctx, &scene, data, split, downscale, opts, json)?;
+    let opts = RenderOptions {
+        supersample: ss.unwrap_or(scene.supersample),
+        ..RenderOptions::for_scene(&scene)
+    };
+    let rep = evaluate(ctx, &scene, data, split, downscale, &opts, json)?;
     if json {
         println!("{}", serde_json::to_string(&rep)?);
     } else {
         println!(
-            "{} views of `{split}` at {}×{}: PSNR {:.2} dB, SSIM {:.4}, {:.1} ms per frame (median, render only)",
-            rep.views, rep.width, rep.height, rep.psnr, rep.ssim, rep.ms_per_frame
+            "{} views of `{split}` at {}×{} (supersampling {}): PSNR {:.2} dB, SSIM {:.4}, {:.1} ms per frame (median, render only)",
+            rep.views, rep.width, rep.height, opts.supersample, rep.psnr, rep.ssim, rep.ms_per_frame
         );
     }
     Ok(())
@@ -579,7 +586,7 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
         &data_dir,
         "test",
         1.0,
-        &RenderOptions::default(),
+        &RenderOptions::for_scene(&scene),
         false,
     )?;
     let renders = a.out.join("renders");
@@ -593,7 +600,8 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
             out: renders.clone(),
             depth: true,
             normal: true,
-            opts: RenderOptions::default(),
+            samples: 1,
+            ss: None,
         },
     )?;
     let how = if a.voxelize {

@@ -65,6 +65,17 @@ pub struct RenderOptions {
     pub supersample: f32,
 }
 
+impl RenderOptions {
+    /// The options a model renders with by default: one sample per segment and the
+    /// supersampling it was trained for ([`Scene::supersample`]).
+    pub fn for_scene(scene: &Scene) -> Self {
+        RenderOptions {
+            samples: 1,
+            supersample: scene.supersample,
+        }
+    }
+}
+
 impl Default for RenderOptions {
     fn default() -> Self {
         RenderOptions {

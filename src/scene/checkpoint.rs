@@ -40,6 +40,7 @@
 //! | `scene_extent` | number: full edge length of the root cube in world units   |
 //! | `sh_degree`    | `0`, `1`, `2` or `3`                                        |
 //! | `background`   | JSON array `[r,g,b]`: background colour                     |
+//! | `supersample`  | number in [1, 8]: default render supersampling (optional: 1) |
 //!
 //! Numbers are written in the shortest form that reads back as the identical `f32`.
 //! Other metadata keys are ignored on load. Loading is strict: unknown tensors, gaps or
@@ -219,6 +220,7 @@ fn encode_header(scene: &Scene) -> Result<Vec<u8>> {
     meta.insert("scene_extent".into(), num(scene.extent).into());
     meta.insert("sh_degree".into(), scene.sh_degree.to_string().into());
     meta.insert("background".into(), vec3(scene.background).into());
+    meta.insert("supersample".into(), num(scene.supersample).into());
     header.insert("__metadata__".into(), Value::Object(meta));
     let mut offset = 0usize;
     for ((name, dtype, _), (shape, bytes)) in TENSORS.iter().zip(shapes(scene)) {
@@ -408,6 +410,16 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
         return Err(format!("metadata `scene_extent` is {extent}, must be > 0"));
     }
     let background = parse_vec3("background", meta_str("background")?)?;
+    // Optional (files written before it existed render without supersampling).
+    let supersample = match meta.get("supersample") {
+        None => 1.0,
+        Some(_) => parse_f32("supersample", meta_str("supersample")?)?,
+    };
+    if !(1.0..=8.0).contains(&supersample) {
+        return Err(format!(
+            "metadata `supersample` is {supersample}, must be in [1, 8]"
+        ));
+    }
 
     // --- tensor entries
     let mut infos = Vec::with_capacity(TENSORS.len());
@@ -557,6 +569,7 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
     }
     scene.sh_degree = sh_degree;
     scene.background = background;
+    scene.supersample = supersample;
     scene.geo = geo;
     scene.sh0 = sh0;
     scene.shs = shs;

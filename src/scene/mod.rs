@@ -102,6 +102,10 @@ pub struct Scene {
     pub sh_degree: u32,
     /// Background colour composited behind the voxels.
     pub background: [f32; 3],
+    /// Supersampling the model renders at by default (1 = none): the training run's `ss`.
+    /// A model trained on supersampled, downsampled frames (the paper's h_ss = 1.5) is
+    /// fitted to that anti-aliased image formation, and renders it best the same way.
+    pub supersample: f32,
     /// Per voxel: Morton code (Listing 1).
     pub octpath: Vec<u64>,
     /// Per voxel: octree level 1..=16.
@@ -150,6 +154,7 @@ impl Scene {
             extent,
             sh_degree,
             background: [0.0; 3],
+            supersample: 1.0,
             geo: vec![geo_init; keys.len()],
             grid_keys: keys,
             corners: Vec::new(),
@@ -242,6 +247,12 @@ impl Scene {
         }
         if self.background.iter().any(|c| !c.is_finite()) {
             return bad(format!("background is not finite: {:?}", self.background));
+        }
+        if !(1.0..=8.0).contains(&self.supersample) {
+            return bad(format!(
+                "supersample must be in [1, 8], got {}",
+                self.supersample
+            ));
         }
         if self.sh_degree > MAX_SH_DEGREE {
             return bad(format!(

@@ -605,6 +605,7 @@ impl Topology {
             extent: scene.extent,
             sh_degree: scene.sh_degree,
             background: scene.background,
+            supersample: scene.supersample,
             octpath,
             octlevel,
             grid_keys,

@@ -130,6 +130,7 @@ pub fn uniform_grid(cfg: &TrainConfig) -> Result<Scene> {
         cfg.geo_init,
     )?;
     scene.background = cfg.background;
+    scene.supersample = cfg.ss;
     let dc = (cfg.sh0_init - 0.5) / 0.282_094_8;
     scene.sh0.iter_mut().for_each(|c| *c = [dc; 3]);
     Ok(scene)
