@@ -4,9 +4,11 @@
 //! - [`sort`]: onesweep radix sort of u64 keys with u32 values, and the u32 prefix scan.
 //! - [`scene`]: the sparse-voxel model and its checkpoint format.
 //! - [`data`]: cameras and datasets.
+//! - [`eval`]: PSNR, SSIM and model evaluation (the numbers every report quotes).
 
 pub mod data;
 pub mod error;
+pub mod eval;
 pub mod gpu;
 pub mod raster;
 pub mod scan;

@@ -7,7 +7,7 @@ mod common;
 use common::{context, finish};
 use svraster::data::{self, demo};
 use svraster::gpu::Context;
-use svraster::raster::{RenderOptions, Renderer, SceneGpu};
+use svraster::raster::RenderOptions;
 use svraster::scene::Scene;
 use svraster::train::config::{Layout, TrainConfig};
 use svraster::train::trainer::{uniform_grid, AdaptReport, Trainer};
@@ -30,25 +30,17 @@ fn demo_data(name: &str, size: u32) -> std::path::PathBuf {
     dir
 }
 
-/// Mean PSNR of `scene` over a split.
+/// Mean PSNR of `scene` over a split (the metric every report uses).
 fn mean_psnr(ctx: &Context, scene: &Scene, ds: &data::blender::Dataset) -> f64 {
-    let gpu = SceneGpu::upload(ctx, scene).unwrap();
-    let mut r = Renderer::new(ctx).unwrap();
-    let mut total = 0.0;
-    for f in &ds.frames {
-        let (img, _) = r
-            .render(&gpu, &f.camera, &RenderOptions::default())
-            .unwrap();
-        let mut se = 0.0f64;
-        for (a, b) in img.rgb.iter().zip(&f.rgb) {
-            for c in 0..3 {
-                let d = a[c].clamp(0.0, 1.0) as f64 - b[c] as f64;
-                se += d * d;
-            }
-        }
-        total += -10.0 * (se / (3 * img.rgb.len()) as f64).log10();
-    }
-    total / ds.frames.len() as f64
+    svraster::eval::evaluate(
+        ctx,
+        scene,
+        ds,
+        &RenderOptions::default(),
+        |_, _, _, _, _| {},
+    )
+    .unwrap()
+    .psnr
 }
 
 #[test]
@@ -80,9 +72,31 @@ fn adaptive_schedule_follows_the_paper_and_scales() {
     let s = c.schedule();
     let iters: Vec<u32> = s.adapt.iter().map(|a| a.iter).collect();
     assert_eq!(iters, (7..=18).map(|k| k * 15).collect::<Vec<_>>());
-    let last = s.adapt.iter().rfind(|a| a.subdivide).unwrap();
-    assert_eq!(last.iter, 225);
+    // No step of a 300-iteration run has the 500 iterations after it that subdivided
+    // children need (subdivide_min_after): it only prunes. Without that guard it would
+    // subdivide up to 0.75 of the run.
+    assert!(s.adapt.iter().all(|a| !a.subdivide), "{:?}", s.adapt);
     assert_eq!(s.adapt[0].prune_below, Some(1e-4));
+    let mut c2 = c.clone();
+    c2.set("subdivide_min_after=0").unwrap();
+    let last = c2
+        .schedule()
+        .adapt
+        .into_iter()
+        .rfind(|a| a.subdivide)
+        .unwrap();
+    assert_eq!(last.iter, 225);
+    // 1 000 iterations: steps up to 500 subdivide (the first at 100).
+    c2.set("subdivide_min_after=500").unwrap();
+    c2.set("iters=1000").unwrap();
+    let sub: Vec<u32> = c2
+        .schedule()
+        .adapt
+        .iter()
+        .filter(|a| a.subdivide)
+        .map(|a| a.iter)
+        .collect();
+    assert_eq!(sub, (2..=10).map(|k| k * 50).collect::<Vec<_>>());
     // The paper's learning rate unscaled needs 400 iterations: a 300-iteration run
     // never adapts.
     c.set("lr_geo_scale_max=1").unwrap();
@@ -118,8 +132,10 @@ fn adaptive_layout_models_only_what_the_scene_requires() {
     cfg.grid_level = 4;
     cfg.extent = 6.0;
     cfg.background = train.background;
-    // Subdivide more per step than the paper so a short run reaches fine levels.
+    // Subdivide more per step than the paper so a short run reaches fine levels, and up
+    // to its end (the default stops 500 iterations before it).
     cfg.subdivide_percent = 0.2;
+    cfg.subdivide_min_after = 0;
     let dense = uniform_grid(&cfg).unwrap().num_voxels();
     let mut t = Trainer::new(&ctx, cfg.clone(), &train, None).unwrap();
     let initial = t.voxels() as usize;
@@ -169,6 +185,7 @@ fn voxel_budget_stops_subdivision() {
     let train = data::load_split(&dir, "train", 1.0, [1.0; 3]).unwrap();
     let mut cfg = TrainConfig::preset("quick").unwrap();
     cfg.iters = 80;
+    cfg.subdivide_min_after = 0;
     cfg.geo_init = -2.0; // adaptive steps from iteration 20 (see the schedule test)
     cfg.grid_level = 4;
     cfg.subdivide_percent = 0.5;
@@ -203,6 +220,7 @@ fn uniform_layout_subdivides_everything_to_its_level() {
     let train = data::load_split(&dir, "train", 1.0, [1.0; 3]).unwrap();
     let mut cfg = TrainConfig::preset("quick").unwrap();
     cfg.iters = 60;
+    cfg.subdivide_min_after = 0;
     cfg.geo_init = -2.0;
     cfg.grid_level = 3;
     cfg.layout = Layout::Uniform;

@@ -4,8 +4,9 @@
 mod common;
 
 use common::Rng;
+use svraster::eval::ssim::{gaussian_window, ssim as ssim_cpu, ssim_grad as ssim_grad_cpu, C1, C2};
 use svraster::gpu::{Buffer, Context, Memory};
-use svraster::train::ssim::{gaussian_window, ssim_cpu, ssim_grad_cpu, Ssim, C1, C2};
+use svraster::train::ssim::Ssim;
 
 fn random_image(rng: &mut Rng, n: usize) -> Vec<[f32; 3]> {
     (0..n)

@@ -6,7 +6,7 @@ mod common;
 use common::{context, finish};
 use svraster::data::{self, demo};
 use svraster::gpu::Context;
-use svraster::raster::{RenderOptions, Renderer, SceneGpu};
+use svraster::raster::RenderOptions;
 use svraster::scene::Scene;
 use svraster::train::config::TrainConfig;
 use svraster::train::trainer::{uniform_grid, Trainer};
@@ -29,25 +29,17 @@ fn demo_data(name: &str, size: u32) -> std::path::PathBuf {
     dir
 }
 
-/// Mean PSNR of `scene` over a split.
+/// Mean PSNR of `scene` over a split (the metric every report uses).
 fn mean_psnr(ctx: &Context, scene: &Scene, ds: &data::blender::Dataset) -> f64 {
-    let gpu = SceneGpu::upload(ctx, scene).unwrap();
-    let mut r = Renderer::new(ctx).unwrap();
-    let mut total = 0.0;
-    for f in &ds.frames {
-        let (img, _) = r
-            .render(&gpu, &f.camera, &RenderOptions::default())
-            .unwrap();
-        let mut se = 0.0f64;
-        for (a, b) in img.rgb.iter().zip(&f.rgb) {
-            for c in 0..3 {
-                let d = a[c].clamp(0.0, 1.0) as f64 - b[c] as f64;
-                se += d * d;
-            }
-        }
-        total += -10.0 * (se / (3 * img.rgb.len()) as f64).log10();
-    }
-    total / ds.frames.len() as f64
+    svraster::eval::evaluate(
+        ctx,
+        scene,
+        ds,
+        &RenderOptions::default(),
+        |_, _, _, _, _| {},
+    )
+    .unwrap()
+    .psnr
 }
 
 fn quick(iters: u32) -> TrainConfig {

@@ -12,7 +12,7 @@ use svraster::gpu::{recorder, Context, Timestamps};
 use svraster::raster::{WalkCounters, WorkCounters};
 use svraster::sort::{passes_for, Count, RadixSort, SortScratch};
 
-use super::median;
+use svraster::eval::median;
 
 #[derive(Subcommand)]
 pub enum BenchCmd {

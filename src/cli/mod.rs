@@ -243,15 +243,3 @@ pub fn run() -> anyhow::Result<()> {
     ctx.check_validation()?;
     Ok(())
 }
-
-/// Median of a non-empty slice.
-pub fn median(v: &[f64]) -> f64 {
-    let mut s = v.to_vec();
-    s.sort_by(|a, b| a.total_cmp(b));
-    let m = s.len() / 2;
-    if s.len() % 2 == 1 {
-        s[m]
-    } else {
-        0.5 * (s[m - 1] + s[m])
-    }
-}

@@ -31,23 +31,6 @@ pub fn load_model(model: &Path) -> anyhow::Result<Scene> {
     Ok(checkpoint::load(&p)?)
 }
 
-/// PSNR in dB of `a` against `b` on [0, 1] RGB (values clamped as when saved to PNG).
-pub fn psnr(a: &[[f32; 3]], b: &[[f32; 3]]) -> f64 {
-    let mut se = 0.0f64;
-    for (x, y) in a.iter().zip(b) {
-        for c in 0..3 {
-            let d = x[c].clamp(0.0, 1.0) as f64 - y[c].clamp(0.0, 1.0) as f64;
-            se += d * d;
-        }
-    }
-    let mse = se / (3 * a.len().max(1)) as f64;
-    if mse == 0.0 {
-        f64::INFINITY
-    } else {
-        -10.0 * mse.log10()
-    }
-}
-
 /// Writes `NAME.png` (rgb) and, on request, `NAME_depth.png` (expected depth, near =
 /// bright, background black, scaled between the 1st and 99th percentile) and
 /// `NAME_normal.png` (outward unit normal −∇density/|∇density| mapped to colour,
@@ -164,7 +147,7 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
         let t = Instant::now();
         let (img, _) = r.render(&gpu, &f.camera, &opts)?;
         ms += t.elapsed().as_secs_f64() * 1e3;
-        let p = psnr(&img.rgb, &f.rgb);
+        let p = svraster::eval::psnr(&img.rgb, &f.rgb);
         total_psnr += p;
         write_image(&a.out, &f.name, &img, a.depth, a.normal)?;
         eprint!(

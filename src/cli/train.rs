@@ -6,15 +6,15 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
 
 use anyhow::{bail, Context as _};
-use svraster::data::{self, Camera};
+use svraster::data;
+use svraster::eval::EvalReport;
 use svraster::gpu::Context;
-use svraster::raster::{RenderOptions, Renderer, SceneGpu};
+use svraster::raster::RenderOptions;
 use svraster::scene::{checkpoint, Scene};
 use svraster::train::config::TrainConfig;
-use svraster::train::ssim::ssim_cpu;
 use svraster::train::trainer::Trainer;
 
-use super::render::{load_model, psnr};
+use super::render::load_model;
 
 static INTERRUPTED: AtomicBool = AtomicBool::new(false);
 
@@ -406,23 +406,8 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
     })
 }
 
-/// Result of `svraster eval`.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct EvalReport {
-    pub psnr: f64,
-    pub ssim: f64,
-    pub views: usize,
-    pub ms_per_frame: f64,
-    pub split: String,
-    pub width: u32,
-    pub height: u32,
-    pub voxels: usize,
-    /// The supersampling the views were rendered with.
-    pub supersample: f32,
-    pub per_view: Vec<(String, f64, f64)>,
-}
-
-/// Evaluates `scene` on a split: mean PSNR and SSIM on [0, 1] RGB, median frame time.
+/// Evaluates `scene` on a split of the dataset at `data` ([`svraster::eval::evaluate`]),
+/// with a progress line on stderr unless `quiet`.
 pub fn evaluate(
     ctx: &Context,
     scene: &Scene,
@@ -436,54 +421,15 @@ pub fn evaluate(
     if ds.frames.is_empty() {
         bail!("split `{split}` of {} has no frames", data.display());
     }
-    let gpu = SceneGpu::upload(ctx, scene)?;
-    let mut r = Renderer::new(ctx)?;
-    // Warm up (pipelines, buffer growth) on the first view.
-    r.render_to_device(&gpu, &ds.frames[0].camera, opts, None)?;
-    let mut times = Vec::new();
-    let mut per_view = Vec::new();
-    for (i, f) in ds.frames.iter().enumerate() {
-        let cam: &Camera = &f.camera;
-        let t = Instant::now();
-        r.render_to_device(&gpu, cam, opts, None)?;
-        times.push(t.elapsed().as_secs_f64() * 1e3);
-        let img = r.read_image()?;
-        let clamp = |v: &[[f32; 3]]| -> Vec<[f32; 3]> {
-            v.iter().map(|c| c.map(|x| x.clamp(0.0, 1.0))).collect()
-        };
-        let p = psnr(&img.rgb, &f.rgb);
-        let s = ssim_cpu(
-            &clamp(&img.rgb),
-            &clamp(&f.rgb),
-            ds.width as usize,
-            ds.height as usize,
-        );
-        per_view.push((f.name.clone(), p, s));
+    let rep = svraster::eval::evaluate(ctx, scene, &ds, opts, |i, n, name, p, s| {
         if !quiet {
-            eprint!(
-                "\r[{}/{}] {}: PSNR {p:.2} SSIM {s:.4}     ",
-                i + 1,
-                ds.frames.len(),
-                f.name
-            );
+            eprint!("\r[{i}/{n}] {name}: PSNR {p:.2} SSIM {s:.4}     ");
         }
-    }
+    })?;
     if !quiet {
         eprintln!();
     }
-    let n = per_view.len() as f64;
-    Ok(EvalReport {
-        psnr: per_view.iter().map(|v| v.1).sum::<f64>() / n,
-        ssim: per_view.iter().map(|v| v.2).sum::<f64>() / n,
-        views: per_view.len(),
-        ms_per_frame: super::median(&times),
-        split: split.to_string(),
-        width: ds.width,
-        height: ds.height,
-        voxels: scene.num_voxels(),
-        supersample: opts.supersample,
-        per_view,
-    })
+    Ok(rep)
 }
 
 /// `svraster eval`.
