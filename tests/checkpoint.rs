@@ -132,7 +132,7 @@ fn scene_from(rng: &mut Pcg64, voxels: &[(u64, u8)], sh_degree: u32) -> Scene {
 
 fn random_scene(seed: u64) -> Scene {
     let mut rng = Pcg64::seed_from_u64(seed);
-    let max_level = if seed % 3 == 0 {
+    let max_level = if seed.is_multiple_of(3) {
         MAX_LEVEL
     } else {
         rng.gen_range(1..=MAX_LEVEL)
@@ -188,7 +188,7 @@ fn split(bytes: &[u8]) -> (serde_json::Map<String, Value>, Vec<u8>) {
 /// Header text (padded to 8-byte data alignment) plus data, as a file.
 fn join_text(header: &str, data: &[u8]) -> Vec<u8> {
     let mut h = header.as_bytes().to_vec();
-    while (8 + h.len()) % 8 != 0 {
+    while !(8 + h.len()).is_multiple_of(8) {
         h.push(b' ');
     }
     let mut out = (h.len() as u64).to_le_bytes().to_vec();

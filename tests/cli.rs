@@ -401,6 +401,9 @@ fn bench_trade_writes_table_json_and_chart() {
             "grid_level=3",
             "--set",
             "subdivide_percent=0.3",
+            // A 160-iteration run: subdivide anyway (the default waits for 500 to follow).
+            "--set",
+            "subdivide_min_after=0",
             "--json",
         ];
         args.extend_from_slice(extra);
@@ -466,5 +469,228 @@ fn bench_trade_writes_table_json_and_chart() {
     let saved: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&row_file).unwrap()).unwrap();
     assert_eq!(saved["key"]["iters"], 160);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// A small demo dataset in `dir/name` (no training).
+fn small_data(dir: &std::path::Path, name: &str, seed: u64) -> PathBuf {
+    let data = dir.join(name);
+    svraster::data::demo::write_dataset(
+        &data,
+        &svraster::data::demo::DemoOptions {
+            width: 24,
+            height: 24,
+            train: 6,
+            val: 2,
+            test: 1,
+            seed,
+        },
+    )
+    .unwrap();
+    data
+}
+
+/// Sets `config.iters` in a run's config.json (turns a finished run into one that
+/// `--resume` continues).
+fn set_run_iters(run: &std::path::Path, iters: u32) {
+    let p = run.join("config.json");
+    let mut v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    v["config"]["iters"] = serde_json::json!(iters);
+    std::fs::write(&p, serde_json::to_string_pretty(&v).unwrap()).unwrap();
+}
+
+/// The iteration a run's optimizer.bin holds (bytes 8..16).
+fn checkpoint_iter(run: &std::path::Path) -> u64 {
+    let b = std::fs::read(run.join("optimizer.bin")).unwrap();
+    u64::from_le_bytes(b[8..16].try_into().unwrap())
+}
+
+/// `--resume` continues the same run (its data, downscale and preset) and refuses
+/// anything else; a checkpoint that cannot be written leaves the previous one resumable.
+#[test]
+fn resume_is_the_same_run_and_checkpoints_are_atomic() {
+    let dir = tmp("resume-same");
+    let data = small_data(&dir, "data", 1);
+    let other = small_data(&dir, "other", 2);
+    let (ds, os) = (data.to_str().unwrap(), other.to_str().unwrap());
+    let run = dir.join("run");
+    let rs = run.to_str().unwrap();
+    let (ok, _, err) = svraster(&[
+        "train",
+        ds,
+        "--out",
+        rs,
+        "--preset",
+        "quick",
+        "--iters",
+        "20",
+        "--downscale",
+        "2",
+        "--set",
+        "grid_level=3",
+    ]);
+    assert!(ok, "{err}");
+    set_run_iters(&run, 30);
+    for (args, needle) in [
+        (vec!["train", os, "--out", rs, "--resume"], "trains on"),
+        (
+            vec![
+                "train",
+                ds,
+                "--out",
+                rs,
+                "--resume",
+                "--preset",
+                "synthetic",
+            ],
+            "--preset quick",
+        ),
+        (
+            vec!["train", ds, "--out", rs, "--resume", "--downscale", "1"],
+            "--downscale 2",
+        ),
+    ] {
+        let (ok, _, err) = svraster(&args);
+        assert!(!ok && err.contains(needle), "{args:?}: {err}");
+    }
+    assert_eq!(checkpoint_iter(&run), 20);
+    // Resumes at the run's own downscale (12×12 images).
+    let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);
+    assert!(ok && err.contains("12×12"), "{err}");
+    assert_eq!(checkpoint_iter(&run), 30);
+
+    // A checkpoint write that fails (here: the optimizer's temporary path is taken by a
+    // directory; on a full disk it is ENOSPC) fails the run with a clear error and leaves
+    // the previous pair as it was.
+    set_run_iters(&run, 40);
+    let blocker = run.join("optimizer.bin.tmp");
+    std::fs::create_dir(&blocker).unwrap();
+    let model_before = std::fs::read(run.join("model.safetensors")).unwrap();
+    let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);
+    assert!(!ok && err.contains("previous checkpoint"), "{err}");
+    assert_eq!(checkpoint_iter(&run), 30);
+    assert!(
+        std::fs::read(run.join("model.safetensors")).unwrap() == model_before,
+        "a failed checkpoint replaced model.safetensors"
+    );
+    assert!(!run.join("model.safetensors.tmp").exists());
+    std::fs::remove_dir(&blocker).unwrap();
+    let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);
+    assert!(ok, "{err}");
+    assert_eq!(checkpoint_iter(&run), 40);
+
+    // A save stopped between its two renames (new optimizer, model still in .tmp) is
+    // completed by --resume.
+    set_run_iters(&run, 50);
+    let model = run.join("model.safetensors");
+    std::fs::rename(&model, run.join("model.safetensors.tmp")).unwrap();
+    std::fs::write(&model, &model_before).unwrap(); // the older model
+    let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);
+    assert!(ok && err.contains("completed the checkpoint"), "{err}");
+    assert_eq!(checkpoint_iter(&run), 50);
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// SIGTERM saves and exits like Ctrl-C; a second process cannot train into a locked run
+/// directory; after a crash, --resume drops the log lines past the checkpoint.
+#[test]
+fn sigterm_saves_runs_are_locked_and_stats_are_truncated_on_resume() {
+    let dir = tmp("sigterm");
+    let data = small_data(&dir, "data", 3);
+    let ds = data.to_str().unwrap();
+    let run = dir.join("run");
+    let rs = run.to_str().unwrap();
+    let child = Command::new(env!("CARGO_BIN_EXE_svraster"))
+        .args([
+            "train",
+            ds,
+            "--out",
+            rs,
+            "--preset",
+            "quick",
+            "--iters",
+            "100000",
+            "--set",
+            "grid_level=3",
+            "--set",
+            "log_every=5",
+            "--set",
+            "checkpoint_every=0",
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    while logged(&run).len() < 2 {
+        assert!(t0.elapsed().as_secs() < 300, "training did not start");
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    // Locked: a second process fails at once, whatever it asks.
+    let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);
+    assert!(!ok && err.contains("in use"), "{err}");
+    let st = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(130), "{err}");
+    assert!(
+        err.contains("stopping after this step") && err.contains("--resume"),
+        "{err}"
+    );
+    let saved = checkpoint_iter(&run);
+    assert!(saved >= 5, "saved at {saved}");
+
+    // A crash after the checkpoint leaves lines past it; --resume drops them.
+    let mut log = std::fs::read_to_string(run.join("stats.jsonl")).unwrap();
+    log.push_str(&format!("{{\"iter\":{},\"psnr\":1}}\n", saved + 5));
+    log.push_str(&format!("{{\"adapt\":{{\"iter\":{}}}}}\n", saved + 3));
+    std::fs::write(run.join("stats.jsonl"), log).unwrap();
+    set_run_iters(&run, saved as u32 + 10);
+    let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);
+    assert!(ok, "{err}");
+    let iters: Vec<u64> = stats_lines(&run)
+        .iter()
+        .map(|l| {
+            l["iter"]
+                .as_u64()
+                .or_else(|| l["adapt"]["iter"].as_u64())
+                .unwrap()
+        })
+        .collect();
+    assert!(iters.windows(2).all(|w| w[0] <= w[1]), "{iters:?}");
+    let logged_iters: Vec<u64> = logged(&run)
+        .iter()
+        .map(|l| l["iter"].as_u64().unwrap())
+        .collect();
+    assert!(
+        logged_iters.windows(2).all(|w| w[0] < w[1]),
+        "{logged_iters:?}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `demo --out` never deletes what it did not create, and checks its arguments before
+/// writing anything.
+#[test]
+fn demo_keeps_directories_it_did_not_make() {
+    let dir = tmp("demo-foreign");
+    let run = dir.join("run");
+    std::fs::create_dir_all(&run).unwrap();
+    std::fs::write(run.join("precious.txt"), b"mine").unwrap();
+    let d = dir.to_str().unwrap();
+    let (ok, _, err) = svraster(&["demo", "--out", d, "--size", "16", "--iters", "5"]);
+    assert!(!ok && err.contains("not made by"), "{err}");
+    assert_eq!(std::fs::read(run.join("precious.txt")).unwrap(), b"mine");
+    assert!(!dir.join("data").exists(), "nothing written");
+
+    let fresh = dir.join("fresh");
+    let f = fresh.to_str().unwrap();
+    let (ok, _, err) = svraster(&["demo", "--out", f, "--level", "0", "--iters", "5"]);
+    assert!(!ok && err.contains("grid_level"), "{err}");
+    assert!(!fresh.exists(), "a rejected demo wrote {}", fresh.display());
     let _ = std::fs::remove_dir_all(&dir);
 }

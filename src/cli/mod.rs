@@ -72,12 +72,13 @@ enum Command {
         /// Iterations (default 20 000; every milestone scales with it).
         #[arg(long)]
         iters: Option<u32>,
-        /// Downscale factor of the images (area averaging).
-        #[arg(long, default_value_t = 1.0)]
-        downscale: f64,
-        /// Configuration preset: synthetic (default) or quick.
-        #[arg(long, default_value = "synthetic")]
-        preset: String,
+        /// Downscale factor of the images (area averaging; default 1, or the run's own
+        /// with --resume).
+        #[arg(long)]
+        downscale: Option<f64>,
+        /// Configuration preset: synthetic (default) or quick (with --resume: the run's).
+        #[arg(long)]
+        preset: Option<String>,
         /// Random seed.
         #[arg(long)]
         seed: Option<u64>,

@@ -2,7 +2,7 @@
 
 use std::io::{IsTerminal, Write as _};
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicU32, Ordering};
 use std::time::Instant;
 
 use anyhow::{bail, Context as _};
@@ -16,22 +16,54 @@ use svraster::train::trainer::Trainer;
 
 use super::render::load_model;
 
-static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+/// Stop requests (Ctrl-C, SIGTERM, SIGHUP) since the training loop started.
+static INTERRUPTS: AtomicU32 = AtomicU32::new(0);
 
-extern "C" fn on_sigint(_sig: i32) {
-    INTERRUPTED.store(true, Ordering::SeqCst);
+/// Routes Ctrl-C and SIGTERM/SIGHUP (what `timeout`, `kill`, Slurm, systemd and
+/// `docker stop` send) to a counter the training loop polls: the first request is
+/// acknowledged at once and the run saves and stops after the current step (an adaptive
+/// step included); a second one exits at once without saving (status 130).
+fn catch_signals() -> anyhow::Result<()> {
+    static INSTALLED: std::sync::OnceLock<Result<(), String>> = std::sync::OnceLock::new();
+    INSTALLED
+        .get_or_init(|| {
+            ctrlc::set_handler(|| {
+                if INTERRUPTS.fetch_add(1, Ordering::SeqCst) == 0 {
+                    eprintln!(
+                        "\nstopping after this step and saving … (again to exit without saving)"
+                    );
+                } else {
+                    eprintln!("\nexiting without saving");
+                    std::process::exit(130);
+                }
+            })
+            .map_err(|e| e.to_string())
+        })
+        .clone()
+        .map_err(|e| anyhow::anyhow!("cannot install the Ctrl-C/SIGTERM handler: {e}"))
 }
 
-extern "C" {
-    fn signal(signum: i32, handler: extern "C" fn(i32)) -> usize;
-}
-
-/// Routes Ctrl-C (SIGINT) to a flag the training loop polls, so it can save and stop.
-fn catch_ctrl_c() {
-    const SIGINT: i32 = 2;
-    // SAFETY: the handler only stores to an atomic (async-signal-safe).
-    unsafe {
-        signal(SIGINT, on_sigint);
+/// Locks `run` (an existing directory) for this process: an advisory lock on
+/// `run/.lock`, released when the returned file is dropped or the process dies. A second
+/// `train`/`demo` into the same directory fails at once instead of mixing two runs.
+pub fn lock_run(run: &Path) -> anyhow::Result<std::fs::File> {
+    let path = run.join(".lock");
+    let f = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .with_context(|| format!("cannot open the run lock {}", path.display()))?;
+    match f.try_lock() {
+        Ok(()) => Ok(f),
+        Err(std::fs::TryLockError::WouldBlock) => bail!(
+            "{} is in use: another svraster process is training in it; wait for it to \
+             finish (or stop it), or choose another --out",
+            run.display()
+        ),
+        Err(std::fs::TryLockError::Error(e)) => {
+            bail!("cannot lock {}: {e}", path.display())
+        }
     }
 }
 
@@ -39,30 +71,46 @@ pub struct TrainArgs {
     pub data: PathBuf,
     pub out: PathBuf,
     pub iters: Option<u32>,
-    pub downscale: f64,
-    pub preset: String,
+    /// None: 1 for a new run, the run's own when resuming.
+    pub downscale: Option<f64>,
+    /// None: `synthetic` for a new run, the run's own when resuming.
+    pub preset: Option<String>,
     pub seed: Option<u64>,
     pub set: Vec<String>,
     pub resume: bool,
 }
 
-/// Writes `bytes` to `path` atomically (temporary file, fsync, rename).
+/// Writes `bytes` to `path` and flushes them to disk (no rename).
+fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    let mut f = std::fs::File::create(path)?;
+    f.write_all(bytes)?;
+    f.sync_all()
+}
+
+/// Flushes a directory's entries (renames) to disk.
+fn sync_dir(dir: &Path) -> std::io::Result<()> {
+    std::fs::File::open(dir)?.sync_all()
+}
+
+/// Writes `bytes` to `path` atomically (temporary file, fsync, rename, directory fsync).
 fn atomic_write(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let tmp = path.with_extension(format!(
-        "{}.tmp",
-        path.extension().and_then(|e| e.to_str()).unwrap_or("")
-    ));
-    let res = (|| -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        std::fs::rename(&tmp, path)
-    })();
+    let tmp = tmp_path(path);
+    let res = write_synced(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
     if let Err(e) = res {
         let _ = std::fs::remove_file(&tmp);
         bail!("cannot write {}: {e}", path.display());
     }
+    if let Some(dir) = path.parent() {
+        let _ = sync_dir(dir);
+    }
     Ok(())
+}
+
+/// `name.ext` → `name.ext.tmp`.
+fn tmp_path(path: &Path) -> PathBuf {
+    let mut s = path.as_os_str().to_owned();
+    s.push(".tmp");
+    PathBuf::from(s)
 }
 
 fn fnv64(bytes: &[u8]) -> u64 {
@@ -76,8 +124,12 @@ fn fnv64(bytes: &[u8]) -> u64 {
 
 const OPT_MAGIC: &[u8; 8] = b"SVRVKOPT";
 
-/// Writes model.safetensors and optimizer.bin (iteration, hash of the model file, Adam
-/// moments), each atomically.
+/// Writes the checkpoint pair model.safetensors + optimizer.bin (iteration, hash of the
+/// model file, Adam moments) so that a failure at any point leaves a resumable pair: both
+/// are written and flushed as `.tmp` files first (a full disk fails here, and the
+/// previous pair stays as it was), then renamed, optimizer first. A crash between the two
+/// renames leaves the new optimizer state beside `model.safetensors.tmp`, which
+/// `--resume` recognises by its hash and completes.
 fn save_run(run: &Path, trainer: &mut Trainer) -> anyhow::Result<()> {
     let scene = trainer.scene()?;
     let model = checkpoint::to_bytes(&scene)?;
@@ -91,8 +143,76 @@ fn save_run(run: &Path, trainer: &mut Trainer) -> anyhow::Result<()> {
         opt.extend_from_slice(&(s.len() as u64).to_le_bytes());
         opt.extend_from_slice(bytemuck::cast_slice(s));
     }
-    atomic_write(&run.join("model.safetensors"), &model)?;
-    atomic_write(&run.join("optimizer.bin"), &opt)?;
+    let model_path = run.join("model.safetensors");
+    let opt_path = run.join("optimizer.bin");
+    let (model_tmp, opt_tmp) = (tmp_path(&model_path), tmp_path(&opt_path));
+    let written = write_synced(&model_tmp, &model)
+        .map_err(|e| (model_tmp.clone(), e))
+        .and_then(|()| write_synced(&opt_tmp, &opt).map_err(|e| (opt_tmp.clone(), e)));
+    if let Err((path, e)) = written {
+        let _ = std::fs::remove_file(&model_tmp);
+        let _ = std::fs::remove_file(&opt_tmp);
+        bail!(
+            "cannot write the checkpoint ({}: {e}); the previous checkpoint in {} is \
+             unchanged and resumable (free space, then --resume)",
+            path.display(),
+            run.display()
+        );
+    }
+    std::fs::rename(&opt_tmp, &opt_path)
+        .and_then(|()| std::fs::rename(&model_tmp, &model_path))
+        .and_then(|()| sync_dir(run))
+        .with_context(|| format!("cannot install the checkpoint in {}", run.display()))?;
+    Ok(())
+}
+
+/// Reads the checkpoint pair for `--resume`: (model bytes, iteration, moments),
+/// completing a save that stopped between its two renames (see [`save_run`]).
+fn load_pair(run: &Path) -> anyhow::Result<(Vec<u8>, u32, Vec<Vec<f32>>)> {
+    let model_path = run.join("model.safetensors");
+    let (iter, hash, state) = load_optimizer(&run.join("optimizer.bin"))?;
+    let model = std::fs::read(&model_path)
+        .with_context(|| format!("cannot resume: cannot read {}", model_path.display()))?;
+    if fnv64(&model) == hash {
+        return Ok((model, iter, state));
+    }
+    let tmp = tmp_path(&model_path);
+    if let Ok(pending) = std::fs::read(&tmp) {
+        if fnv64(&pending) == hash {
+            std::fs::rename(&tmp, &model_path)
+                .with_context(|| format!("cannot complete the checkpoint {}", tmp.display()))?;
+            eprintln!("completed the checkpoint of iteration {iter} that a stop interrupted");
+            return Ok((pending, iter, state));
+        }
+    }
+    bail!(
+        "{} and optimizer.bin are from different iterations; cannot resume safely",
+        model_path.display()
+    )
+}
+
+/// Drops the lines of `run/stats.jsonl` past iteration `iter` (a run that crashed after
+/// its last checkpoint logged iterations the resumed run will log again).
+fn truncate_stats(run: &Path, iter: u32) -> anyhow::Result<()> {
+    let path = run.join("stats.jsonl");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        return Ok(());
+    };
+    let keep: Vec<&str> = text
+        .lines()
+        .filter(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap_or_default();
+            let at = v["iter"].as_u64().or_else(|| v["adapt"]["iter"].as_u64());
+            at.is_some_and(|i| i <= u64::from(iter))
+        })
+        .collect();
+    if keep.len() != text.lines().count() {
+        let mut out = keep.join("\n");
+        if !out.is_empty() {
+            out.push('\n');
+        }
+        atomic_write(&path, out.as_bytes())?;
+    }
     Ok(())
 }
 
@@ -155,7 +275,7 @@ fn fmt_duration(s: f64) -> String {
 
 /// Resolves the configuration of a new run.
 pub fn resolve_config(a: &TrainArgs) -> anyhow::Result<TrainConfig> {
-    let mut cfg = TrainConfig::preset(&a.preset)?;
+    let mut cfg = TrainConfig::preset(a.preset.as_deref().unwrap_or("synthetic"))?;
     if let Some(n) = a.iters {
         cfg.iters = n;
     }
@@ -176,35 +296,66 @@ pub struct RunSummary {
     pub interrupted: bool,
 }
 
+/// The path as written in config.json (absolute where it resolves).
+fn canonical(p: &Path) -> PathBuf {
+    std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf())
+}
+
 /// `svraster train`.
 pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     let run = &a.out;
     let cfg_path = run.join("config.json");
-    let (cfg, init, opt_state, start_iter) = if a.resume {
+    let mut _lock = None;
+    let (cfg, init, opt_state, start_iter, preset, downscale) = if a.resume {
         if a.iters.is_some() || a.seed.is_some() || !a.set.is_empty() {
             bail!("--resume continues a run with its own config.json: drop --iters/--seed/--set (or start a new --out)");
         }
-        let text = std::fs::read_to_string(&cfg_path).with_context(|| {
-            format!(
+        if !cfg_path.is_file() {
+            bail!(
                 "cannot resume: {} not found (start the run without --resume)",
                 cfg_path.display()
-            )
-        })?;
+            );
+        }
+        _lock = Some(lock_run(run)?);
+        let text = std::fs::read_to_string(&cfg_path)
+            .with_context(|| format!("cannot read {}", cfg_path.display()))?;
         let v: serde_json::Value = serde_json::from_str(&text)
             .with_context(|| format!("{} is not valid JSON", cfg_path.display()))?;
         let cfg: TrainConfig = serde_json::from_value(v["config"].clone())
             .with_context(|| format!("{}: bad \"config\"", cfg_path.display()))?;
         cfg.validate()?;
-        let model_path = run.join("model.safetensors");
-        let model_bytes = std::fs::read(&model_path)
-            .with_context(|| format!("cannot resume: cannot read {}", model_path.display()))?;
-        let (iter, hash, state) = load_optimizer(&run.join("optimizer.bin"))?;
-        if fnv64(&model_bytes) != hash {
-            bail!(
-                "{} and optimizer.bin are from different iterations; cannot resume safely",
-                model_path.display()
-            );
+        // The same run: the data, downscale and preset that shaped it.
+        let run_data = v["data"].as_str().map(PathBuf::from);
+        if let Some(d) = &run_data {
+            if canonical(d) != canonical(&a.data) {
+                bail!(
+                    "--resume: the run in {} trains on {}, not {}; pass that DATA (or start a new --out)",
+                    run.display(),
+                    d.display(),
+                    a.data.display()
+                );
+            }
         }
+        let run_downscale = v["downscale"].as_f64().unwrap_or(1.0);
+        if let Some(d) = a.downscale {
+            if d != run_downscale {
+                bail!(
+                    "--resume: the run in {} uses --downscale {run_downscale}, not {d}; drop --downscale (or start a new --out)",
+                    run.display()
+                );
+            }
+        }
+        let run_preset = v["preset"].as_str().unwrap_or("synthetic").to_string();
+        if let Some(p) = &a.preset {
+            if *p != run_preset {
+                bail!(
+                    "--resume: the run in {} was started with --preset {run_preset}, not {p}; drop --preset (or start a new --out)",
+                    run.display()
+                );
+            }
+        }
+        let (model_bytes, iter, state) = load_pair(run)?;
+        let model_path = run.join("model.safetensors");
         let scene = checkpoint::from_bytes(&model_bytes)
             .with_context(|| format!("cannot load {}", model_path.display()))?;
         if iter >= cfg.iters {
@@ -214,7 +365,15 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
                 cfg.iters
             );
         }
-        (cfg, Some(scene), Some(state), iter)
+        truncate_stats(run, iter)?;
+        (
+            cfg,
+            Some(scene),
+            Some(state),
+            iter,
+            run_preset,
+            run_downscale,
+        )
     } else {
         if run.join("model.safetensors").exists() || cfg_path.exists() {
             bail!(
@@ -222,12 +381,34 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
                 run.display()
             );
         }
-        (resolve_config(a)?, None, None, 0)
+        let downscale = a.downscale.unwrap_or(1.0);
+        if !(downscale.is_finite() && downscale >= 1.0) {
+            bail!("--downscale must be a number >= 1, got {downscale}");
+        }
+        (
+            resolve_config(a)?,
+            None,
+            None,
+            0,
+            a.preset.clone().unwrap_or_else(|| "synthetic".into()),
+            downscale,
+        )
     };
     eprintln!("loading the train split of {} …", a.data.display());
-    let train = data::load_split(&a.data, "train", a.downscale, cfg.background)?;
-    std::fs::create_dir_all(run)
-        .with_context(|| format!("cannot create run directory {}", run.display()))?;
+    let train = data::load_split(&a.data, "train", downscale, cfg.background)?;
+    if _lock.is_none() {
+        // A new run: everything is validated; now the directory, locked before anything
+        // is written into it (and checked again under the lock).
+        std::fs::create_dir_all(run)
+            .with_context(|| format!("cannot create run directory {}", run.display()))?;
+        _lock = Some(lock_run(run)?);
+        if run.join("model.safetensors").exists() || cfg_path.exists() {
+            bail!(
+                "{} already holds a run: pass --resume to continue it, or choose another --out",
+                run.display()
+            );
+        }
+    }
     if init.is_none() {
         eprintln!(
             "initialising: a level-{} grid ({} voxels), keeping those the {} training views \
@@ -246,9 +427,9 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         let doc = serde_json::json!({
             "config": cfg,
             "schedule": trainer.schedule(),
-            "preset": a.preset,
-            "data": a.data,
-            "downscale": a.downscale,
+            "preset": preset,
+            "data": canonical(&a.data),
+            "downscale": downscale,
             "image_size": [train.width, train.height],
             "train_views": train.frames.len(),
             "voxels": trainer.voxels(),
@@ -259,7 +440,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         atomic_write(&cfg_path, serde_json::to_string_pretty(&doc)?.as_bytes())?;
         let _ = std::fs::remove_file(run.join("stats.jsonl"));
     }
-    if ctx.info().is_cpu && !a.resume && a.preset == "synthetic" && cfg.iters > 5_000 {
+    if ctx.info().is_cpu && !a.resume && preset == "synthetic" && cfg.iters > 5_000 {
         eprintln!(
             "note: {} is a CPU device: {} iterations take hours here (0.2–1 s each at \
              100²–200²); a few thousand (--iters 3000) reach most of the quality",
@@ -288,8 +469,8 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
 
 /// Runs the remaining iterations with progress, stats.jsonl, checkpoints and Ctrl-C.
 fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
-    catch_ctrl_c();
-    INTERRUPTED.store(false, Ordering::SeqCst);
+    catch_signals()?;
+    INTERRUPTS.store(0, Ordering::SeqCst);
     let cfg = trainer.config().clone();
     let sched = trainer.schedule().clone();
     let tty = std::io::stderr().is_terminal();
@@ -304,7 +485,7 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
     let mut last_print = Instant::now();
     let mut shown = None;
     while trainer.iter() < cfg.iters {
-        if INTERRUPTED.load(Ordering::SeqCst) {
+        if INTERRUPTS.load(Ordering::SeqCst) > 0 {
             eprintln!();
             save_run(run, trainer)?;
             eprintln!(
@@ -319,7 +500,7 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
             });
         }
         let it = trainer.iter() + 1;
-        let measure = it % cfg.log_every == 0 || it == cfg.iters || it == first + 1;
+        let measure = it.is_multiple_of(cfg.log_every) || it == cfg.iters || it == first + 1;
         let info = trainer.step(measure)?;
         if let Some(l) = info.losses {
             trainer.check_finite()?;
@@ -479,6 +660,46 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
         seed: a.seed,
         ..Default::default()
     };
+    // Every argument is checked before anything is written.
+    demo::demo_splits(&opts)?;
+    let train_args = TrainArgs {
+        data: data_dir.clone(),
+        out: a.out.join("run"),
+        iters: Some(a.iters),
+        downscale: Some(1.0),
+        preset: Some("quick".into()),
+        seed: Some(a.seed),
+        set: vec![format!("grid_level={}", a.level)],
+        resume: false,
+    };
+    if !a.voxelize {
+        resolve_config(&train_args)?;
+    } else if !(1..=svraster::scene::MAX_LEVEL).contains(&a.level) {
+        bail!(
+            "--level must be in 1..={} for --voxelize",
+            svraster::scene::MAX_LEVEL
+        );
+    }
+    // The demo replaces what it made before, in a directory it made (marked), and never
+    // touches one it did not.
+    let marker = a.out.join(".svraster-demo");
+    let non_empty = a
+        .out
+        .read_dir()
+        .map(|mut d| d.next().is_some())
+        .unwrap_or(false);
+    if non_empty && !marker.is_file() {
+        bail!(
+            "{} exists and was not made by `svraster demo`: choose another --out (the demo \
+             only replaces files in a directory it created)",
+            a.out.display()
+        );
+    }
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("cannot create {}", a.out.display()))?;
+    let _lock = lock_run(&a.out)?;
+    std::fs::write(&marker, b"made by svraster demo\n")
+        .with_context(|| format!("cannot write {}", marker.display()))?;
     let t = Instant::now();
     eprintln!(
         "generating the demo dataset ({}×{}, {} train / {} val / {} test views) in {} …",
@@ -508,19 +729,7 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
             interrupted: false,
         }
     } else {
-        run_train(
-            ctx,
-            &TrainArgs {
-                data: data_dir.clone(),
-                out: run.clone(),
-                iters: Some(a.iters),
-                downscale: 1.0,
-                preset: "quick".into(),
-                seed: Some(a.seed),
-                set: vec![format!("grid_level={}", a.level)],
-                resume: false,
-            },
-        )?
+        run_train(ctx, &train_args)?
     };
     if summary.interrupted {
         std::process::exit(130);

@@ -263,7 +263,7 @@ pub fn ray_hit(origin: [f64; 3], dir: [f64; 3]) -> Option<Hit> {
     let mut best: Option<Hit> = None;
     for (i, prim) in PRIMITIVES.iter().enumerate() {
         if let Some((t, normal)) = prim.shape.intersect(origin, dir, 1e-9) {
-            if best.map_or(true, |b| t < b.t) {
+            if best.is_none_or(|b| t < b.t) {
                 best = Some(Hit {
                     t,
                     point: add(origin, scale(dir, t)),

@@ -341,7 +341,7 @@ impl RadixSort {
                 t.mark(cmd, &format!("sort.pass{p}"));
             }
         }
-        Ok(if passes % 2 == 0 {
+        Ok(if passes.is_multiple_of(2) {
             Sorted::Primary
         } else {
             Sorted::Alternate

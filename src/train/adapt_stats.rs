@@ -108,7 +108,7 @@ impl StatsPass {
     /// flight).
     pub fn begin(&mut self, voxels: u32) -> Result<()> {
         let bytes = u64::from(voxels.max(1)) * 4;
-        let small = |b: &Option<Buffer>| b.as_ref().map_or(true, |b| b.size() < bytes);
+        let small = |b: &Option<Buffer>| b.as_ref().is_none_or(|b| b.size() < bytes);
         if small(&self.max_weight) || small(&self.min_interval) {
             let size = bytes.saturating_add(bytes / 2);
             // Free the old ones first, so peak memory stays low.

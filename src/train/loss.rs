@@ -78,7 +78,7 @@ impl PixelLoss {
         let nrender = frame.render_width * frame.render_height;
         let groups = nout.max(nrender).div_ceil(256);
         let need = groups as u64 * 3 * 4;
-        if !self.partials.as_ref().is_some_and(|b| b.size() >= need) {
+        if self.partials.as_ref().is_none_or(|b| b.size() < need) {
             self.partials = None;
             self.partials = Some(self.ctx.buffer(
                 "loss.partials",

@@ -231,7 +231,7 @@ impl Tv {
         }
         let groups = voxels.div_ceil(GROUP);
         let need = u64::from(groups.max(1)) * 4;
-        if self.partials.as_ref().map_or(true, |b| b.size() < need) {
+        if self.partials.as_ref().is_none_or(|b| b.size() < need) {
             let size = need.saturating_add(need / 2);
             let buf = self.ctx.buffer("tv.partials", size, Memory::Device)?;
             if let Some(old) = self.partials.replace(buf) {

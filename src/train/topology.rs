@@ -219,7 +219,7 @@ fn ensure<'a>(
     bytes: u64,
     memory: Memory,
 ) -> Result<&'a mut Buffer> {
-    if slot.as_ref().map_or(true, |b| b.size() < bytes) {
+    if slot.as_ref().is_none_or(|b| b.size() < bytes) {
         *slot = None;
         let size = bytes.saturating_add(bytes / 4).max(64);
         *slot = Some(ctx.buffer(name, size, memory)?);
@@ -399,7 +399,7 @@ impl Topology {
             layout.end,
             Memory::Device,
         )?;
-        if self.bufs.as_ref().map_or(true, |b| b.capacity < cand_n) {
+        if self.bufs.as_ref().is_none_or(|b| b.capacity < cand_n) {
             self.bufs = None;
             let cap = cand_n
                 .saturating_add(cand_n / 4)
