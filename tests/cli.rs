@@ -589,6 +589,22 @@ fn resume_is_the_same_run_and_checkpoints_are_atomic() {
     let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);
     assert!(ok && err.contains("completed the checkpoint"), "{err}");
     assert_eq!(checkpoint_iter(&run), 50);
+
+    // eval/render default to the run's downscale and to a split that exists.
+    std::fs::remove_file(data.join("transforms_test.json")).unwrap();
+    let (ok, out, err) = svraster(&["eval", rs, "--data", ds, "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert_eq!(
+        (v["split"].as_str(), v["width"].as_u64()),
+        (Some("val"), Some(12)),
+        "{v}"
+    );
+    let r = dir.join("renders");
+    let (ok, _, err) = svraster(&["render", rs, "--data", ds, "--out", r.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    let img = image::open(r.join("r_0.png")).unwrap();
+    assert_eq!((img.width(), img.height()), (12, 12));
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -866,3 +866,63 @@ fn voxelized_surfaces_are_opaque_and_coloured() {
         }
     }
 }
+
+/// Poses that are not rigid transforms are rejected with the frame named.
+#[test]
+fn error_non_rigid_pose() {
+    let with = |m: &str| {
+        format!(
+            r#"{{"camera_angle_x": 0.5, "frames": [{{"file_path": "train/r_0", "transform_matrix": {POSE}}},
+            {{"file_path": "train/r_1.png", "transform_matrix": {m}}}]}}"#
+        )
+    };
+    for (tag, m, why) in [
+        (
+            "zero",
+            "[[0,0,0,0],[0,0,0,0],[0,0,0,0],[0,0,0,1]]",
+            "length 0",
+        ),
+        (
+            "rank",
+            "[[1,0,0,0],[0,1,0,0],[0,1,0,4],[0,0,0,1]]",
+            "column 1 has length",
+        ),
+        (
+            "skew",
+            "[[1,0.6,0,0],[0,0.8,0,0],[0,0,1,4],[0,0,0,1]]",
+            "not orthogonal",
+        ),
+        (
+            "scaled",
+            "[[2,0,0,0],[0,2,0,0],[0,0,2,4],[0,0,0,1]]",
+            "length 2",
+        ),
+        (
+            "mirror",
+            "[[-1,0,0,0],[0,1,0,0],[0,0,1,4],[0,0,0,1]]",
+            "reflection",
+        ),
+        (
+            "far",
+            "[[1,0,0,0],[0,1,0,0],[0,0,1,1e9],[0,0,0,1]]",
+            "from the origin",
+        ),
+        (
+            "bottom",
+            "[[1,0,0,0],[0,1,0,0],[0,0,1,4],[0,0,1,1]]",
+            "bottom row",
+        ),
+    ] {
+        let e = error_for(tag, &with(m), 1.0);
+        assert_contains(&e, &["frames[1] (train/r_1.png)", "not a rigid", why]);
+    }
+    // Rounded orthonormal rotations (6 decimals, as in NeRF-synthetic files) are fine.
+    let dir = tiny_dataset("rounded");
+    // A 30° turn about z, cos and sin rounded to 6 decimals.
+    std::fs::write(
+        dir.path().join("transforms_train.json"),
+        with("[[0.866025,-0.5,0,0],[0.5,0.866025,0,0],[0,0,1,4],[0,0,0,1]]"),
+    )
+    .unwrap();
+    load_split(dir.path(), "train", 1.0, [0.0; 3]).unwrap();
+}

@@ -100,10 +100,13 @@ enum Command {
         model: PathBuf,
         #[arg(long)]
         data: PathBuf,
-        #[arg(long, default_value = "test", value_parser = ["train", "val", "test"])]
-        split: String,
-        #[arg(long, default_value_t = 1.0)]
-        downscale: f64,
+        /// Split to evaluate (default: test, else val when the dataset has no test split).
+        #[arg(long, value_parser = ["train", "val", "test"])]
+        split: Option<String>,
+        /// Downscale factor of the images (default: the run's own when MODEL is a run
+        /// directory, else 1).
+        #[arg(long)]
+        downscale: Option<f64>,
         /// Print one JSON object (psnr, ssim, views, ms_per_frame, per_view …) on stdout.
         #[arg(long)]
         json: bool,
@@ -119,12 +122,13 @@ enum Command {
         /// Blender-format dataset directory (transforms_{split}.json + images).
         #[arg(long)]
         data: PathBuf,
-        /// Split to render.
-        #[arg(long, default_value = "test", value_parser = ["train", "val", "test"])]
-        split: String,
-        /// Downscale factor of the images (area averaging; intrinsics scaled).
-        #[arg(long, default_value_t = 1.0)]
-        downscale: f64,
+        /// Split to render (default: test, else val when the dataset has no test split).
+        #[arg(long, value_parser = ["train", "val", "test"])]
+        split: Option<String>,
+        /// Downscale factor of the images (area averaging; intrinsics scaled; default: the
+        /// run's own when MODEL is a run directory, else 1).
+        #[arg(long)]
+        downscale: Option<f64>,
         /// Output directory: one PNG per frame, named after the frame's file.
         #[arg(long)]
         out: PathBuf,
@@ -215,7 +219,11 @@ pub fn run() -> anyhow::Result<()> {
             downscale,
             json,
             ss,
-        } => train::run_eval(&ctx, &model, &data, &split, downscale, ss, json)?,
+        } => {
+            let split = split.unwrap_or_else(|| default_split(&data));
+            let downscale = downscale.unwrap_or_else(|| run_downscale(&model));
+            train::run_eval(&ctx, &model, &data, &split, downscale, ss, json)?
+        }
         Command::Render {
             model,
             data,
@@ -229,10 +237,10 @@ pub fn run() -> anyhow::Result<()> {
         } => render::run_render(
             &ctx,
             render::RenderArgs {
+                split: split.unwrap_or_else(|| default_split(&data)),
+                downscale: downscale.unwrap_or_else(|| run_downscale(&model)),
                 model,
                 data,
-                split,
-                downscale,
                 out,
                 depth,
                 normal,
@@ -243,4 +251,44 @@ pub fn run() -> anyhow::Result<()> {
     }
     ctx.check_validation()?;
     Ok(())
+}
+
+/// The split `eval`/`render` use by default: `test`, else `val` when the dataset has no
+/// `transforms_test.json` (e.g. lego_400, whose test split is held back).
+fn default_split(data: &std::path::Path) -> String {
+    let split = if data.join("transforms_test.json").is_file()
+        || !data.join("transforms_val.json").is_file()
+    {
+        "test"
+    } else {
+        "val"
+    };
+    if split != "test" {
+        eprintln!(
+            "{} has no test split: using `val` (--split to choose)",
+            data.display()
+        );
+    }
+    split.to_string()
+}
+
+/// The downscale a model was trained at when `model` is a run directory (or a file in
+/// one) with config.json; else 1.
+fn run_downscale(model: &std::path::Path) -> f64 {
+    let dir = if model.is_dir() {
+        Some(model)
+    } else {
+        model.parent()
+    };
+    let d = dir
+        .and_then(|d| std::fs::read_to_string(d.join("config.json")).ok())
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|v| v["downscale"].as_f64())
+        .filter(|d| d.is_finite() && *d >= 1.0);
+    if let Some(d) = d {
+        if d != 1.0 {
+            eprintln!("downscale {d} (the run's; --downscale to choose)");
+        }
+    }
+    d.unwrap_or(1.0)
 }

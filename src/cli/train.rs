@@ -259,6 +259,39 @@ fn load_optimizer(path: &Path) -> anyhow::Result<(u32, u64, Vec<Vec<f32>>)> {
     Ok((iter as u32, hash, out))
 }
 
+/// Iteration rate over a moving window (the last ~30 s, at least 2 samples), so the ETA
+/// follows the run's current speed (the first iterations carry warm-up and a larger
+/// model, adaptive steps come and go) instead of its mean since the start.
+struct RateWindow {
+    samples: std::collections::VecDeque<(u32, f64)>,
+    window_s: f64,
+}
+
+impl RateWindow {
+    fn new(window_s: f64) -> Self {
+        RateWindow {
+            samples: std::collections::VecDeque::new(),
+            window_s,
+        }
+    }
+
+    /// Records that iteration `iter` finished at time `t` (seconds).
+    fn push(&mut self, iter: u32, t: f64) {
+        self.samples.push_back((iter, t));
+        while self.samples.len() > 2 && t - self.samples[1].1 >= self.window_s {
+            self.samples.pop_front();
+        }
+    }
+
+    /// Iterations per second over the window (NaN before two samples).
+    fn rate(&self) -> f64 {
+        match (self.samples.front(), self.samples.back()) {
+            (Some(a), Some(b)) if b.1 > a.1 => f64::from(b.0 - a.0) / (b.1 - a.1),
+            _ => f64::NAN,
+        }
+    }
+}
+
 fn fmt_duration(s: f64) -> String {
     if !s.is_finite() {
         return "?".into();
@@ -484,6 +517,8 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
     let first = trainer.iter();
     let mut last_print = Instant::now();
     let mut shown = None;
+    let mut window = RateWindow::new(30.0);
+    window.push(first, 0.0);
     while trainer.iter() < cfg.iters {
         if INTERRUPTS.load(Ordering::SeqCst) > 0 {
             eprintln!();
@@ -546,9 +581,9 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
             save_run(run, trainer)?;
         }
         let done = info.iter == cfg.iters;
+        window.push(info.iter, t0.elapsed().as_secs_f64());
         if (tty && last_print.elapsed().as_secs_f64() > 0.5) || info.losses.is_some() || done {
-            let el = t0.elapsed().as_secs_f64();
-            let rate = (info.iter - first) as f64 / el.max(1e-9);
+            let rate = window.rate();
             let eta = (cfg.iters - info.iter) as f64 / rate;
             let (loss, p) = shown.map_or((f64::NAN, f64::NAN), |l| (l.loss, l.psnr));
             let msg = format!(
@@ -775,4 +810,30 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
         renders.display()
     );
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RateWindow;
+
+    #[test]
+    fn eta_follows_the_current_rate() {
+        // 10 slow iterations (1 s each), then 200 fast ones (0.1 s each).
+        let mut w = RateWindow::new(5.0);
+        let mut t = 0.0;
+        w.push(0, t);
+        assert!(w.rate().is_nan());
+        for i in 1..=210u32 {
+            t += if i <= 10 { 1.0 } else { 0.1 };
+            w.push(i, t);
+        }
+        // The mean since the start would say 210 / 30 s = 7 it/s.
+        assert!((w.rate() - 10.0).abs() < 1e-6, "{}", w.rate());
+        // A run that slows down is seen within the window.
+        for i in 211..=260u32 {
+            t += 1.0;
+            w.push(i, t);
+        }
+        assert!((w.rate() - 1.0).abs() < 1e-6, "{}", w.rate());
+    }
 }

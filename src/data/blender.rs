@@ -373,6 +373,13 @@ fn parse_transforms(
                  (camera-to-world): {why}"
             ))
         })?;
+        check_rigid(&c2w_gl).map_err(|why| {
+            bad(format!(
+                "frames[{i}] ({file_path}).transform_matrix is not a rigid camera-to-world \
+                 transform: {why}; fix or drop this pose (the rotation must be orthonormal \
+                 with determinant +1, the bottom row [0, 0, 0, 1])"
+            ))
+        })?;
         let image = resolve_image(dir, file_path);
         let name = Path::new(file_path)
             .file_stem()
@@ -385,6 +392,45 @@ fn parse_transforms(
         });
     }
     Ok((intrinsics, specs))
+}
+
+/// Checks that a camera-to-world matrix is a rigid transform: orthonormal rotation
+/// (`RᵀR = I` to 1e-3 per entry), determinant +1, bottom row `[0, 0, 0, 1]`, and a camera
+/// position within 1e6 of the origin. Zero, rank-deficient, scaled or mirrored rotations
+/// would render a different image than the photo's without any error.
+pub(crate) fn check_rigid(m: &[[f64; 4]; 4]) -> std::result::Result<(), String> {
+    const TOL: f64 = 1e-3;
+    for (c, want) in [0.0, 0.0, 0.0, 1.0].iter().enumerate() {
+        if (m[3][c] - want).abs() > TOL {
+            return Err(format!("bottom row is {:?}", m[3]));
+        }
+    }
+    for a in 0..3 {
+        for b in 0..3 {
+            let dot: f64 = (0..3).map(|r| m[r][a] * m[r][b]).sum();
+            let want = if a == b { 1.0 } else { 0.0 };
+            if (dot - want).abs() > TOL {
+                return Err(if a == b {
+                    format!("rotation column {a} has length {:.6}, not 1", dot.sqrt())
+                } else {
+                    format!("rotation columns {a} and {b} are not orthogonal (dot {dot:.6})")
+                });
+            }
+        }
+    }
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    if det < 0.0 {
+        return Err(format!(
+            "the rotation is a reflection (determinant {det:.6})"
+        ));
+    }
+    let t = (m[0][3] * m[0][3] + m[1][3] * m[1][3] + m[2][3] * m[2][3]).sqrt();
+    if t > 1e6 {
+        return Err(format!("the camera position is {t:.3e} from the origin"));
+    }
+    Ok(())
 }
 
 /// A 4×4 matrix of finite numbers from JSON; the error says what is wrong.
