@@ -426,9 +426,11 @@ fn bench_trade_writes_table_json_and_chart() {
         assert!(r["train_s"].as_f64().unwrap() > 0.0 && r["ms_per_frame"].as_f64().unwrap() > 0.0);
         assert!(r["peak_device_memory"].as_u64().unwrap() > 0, "{r}");
     }
-    // uniform-3 never subdivides; uniform-4 subdivides every kept voxel once.
+    // uniform-3 never subdivides; uniform-4 subdivides the kept voxels once (as many as
+    // the budget allows).
     assert_eq!(rows[1]["max_level"], 3);
     assert_eq!(rows[2]["max_level"], 4);
+    assert_eq!(rows[1]["budget_capped"], false);
     let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
     assert_eq!(
         md.lines().filter(|l| l.starts_with("| uniform-")).count(),
@@ -469,6 +471,38 @@ fn bench_trade_writes_table_json_and_chart() {
     let saved: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&row_file).unwrap()).unwrap();
     assert_eq!(saved["key"]["iters"], 160);
+
+    // A uniform variant the budget stops short of its level is marked as such.
+    let capped_out = dir.join("capped");
+    let (ok, stdout3, err3) = svraster(&[
+        "bench",
+        "trade",
+        data.to_str().unwrap(),
+        "--out",
+        capped_out.to_str().unwrap(),
+        "--iters",
+        "160",
+        "--max-voxels",
+        "1500",
+        "--uniform-levels",
+        "5",
+        "--set",
+        "grid_level=3",
+        "--set",
+        "subdivide_min_after=0",
+        "--json",
+    ]);
+    assert!(ok, "{err3}");
+    let doc3: serde_json::Value = serde_json::from_str(stdout3.trim()).expect("trade JSON");
+    let u5 = &doc3["rows"][1];
+    assert_eq!(u5["variant"], "uniform-5");
+    assert_eq!(u5["budget_capped"], true, "{u5}");
+    assert!(u5["max_level"].as_u64().unwrap() < 5, "{u5}");
+    let md = std::fs::read_to_string(capped_out.join("trade.md")).unwrap();
+    assert!(
+        md.contains("uniform-5 (capped by the budget at level"),
+        "{md}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -44,6 +44,10 @@ pub struct TradeRow {
     pub ssim: f64,
     pub train_s: f64,
     pub ms_per_frame: f64,
+    /// Whether the voxel budget stopped a subdivision of this variant (a capped
+    /// `uniform-L` does not reach level L: it is not the layout its name says).
+    #[serde(default)]
+    pub budget_capped: bool,
     pub run: PathBuf,
 }
 
@@ -133,6 +137,7 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
             ssim: rep.ssim,
             train_s: summary.seconds,
             ms_per_frame: rep.ms_per_frame,
+            budget_capped: budget_capped(&run)?,
             run,
         };
         let saved = serde_json::json!({ "key": key, "row": row });
@@ -216,6 +221,19 @@ fn peak_device_memory(run: &Path) -> anyhow::Result<u64> {
     Ok(peak)
 }
 
+/// Whether any adaptive step of a run's stats.jsonl reports the voxel budget reached.
+fn budget_capped(run: &Path) -> anyhow::Result<bool> {
+    let p = run.join("stats.jsonl");
+    let text =
+        std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
+    Ok(text.lines().any(|l| {
+        serde_json::from_str::<serde_json::Value>(l)
+            .ok()
+            .and_then(|v| v["adapt"]["budget_reached"].as_bool())
+            .unwrap_or(false)
+    }))
+}
+
 fn write(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
     let tmp = path.with_extension("tmp");
     std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
@@ -240,9 +258,17 @@ fn table(ctx: &Context, a: &TradeArgs, rows: &[TradeRow]) -> String {
           train | ms/frame |\n";
     s += "|---|---|---|---|---|---|---|---|---|\n";
     for r in rows {
+        let name = if r.budget_capped {
+            format!(
+                "{} (capped by the budget at level {})",
+                r.variant, r.max_level
+            )
+        } else {
+            r.variant.clone()
+        };
         s += &format!(
             "| {} | {} | {} | {} | {:.0} MiB | {:.2} | {:.4} | {:.0} s | {:.1} |\n",
-            r.variant,
+            name,
             r.voxels,
             r.grid_points,
             r.max_level,
