@@ -744,3 +744,43 @@ fn demo_keeps_directories_it_did_not_make() {
     assert!(!fresh.exists(), "a rejected demo wrote {}", fresh.display());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// `bench sort` with more keys than the device (or host) can hold is one clear error.
+#[test]
+fn bench_sort_too_large_is_a_clear_error() {
+    let (ok, _, err) = svraster(&["bench", "sort", "--n", "4000000000", "--runs", "5"]);
+    assert!(
+        !ok && err.contains("--n 4000000000") && err.contains("use"),
+        "{err}"
+    );
+    assert_eq!(err.trim().lines().count(), 1, "one error line: {err}");
+}
+
+/// A voxel budget below the starting grid is refused before training (not a run that
+/// silently never subdivides), and leaves no run behind.
+#[test]
+fn train_refuses_a_budget_below_the_starting_grid() {
+    let dir = tmp("budget-small");
+    let data = small_data(&dir, "data", 4);
+    let run = dir.join("run");
+    let (ok, _, err) = svraster(&[
+        "train",
+        data.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--preset",
+        "quick",
+        "--iters",
+        "30",
+        "--set",
+        "grid_level=3",
+        "--max-voxels",
+        "10",
+    ]);
+    assert!(
+        !ok && err.contains("voxel budget (10)") && err.contains("--max-voxels"),
+        "{err}"
+    );
+    assert!(!run.join("model.safetensors").exists() && !run.join("config.json").exists());
+    let _ = std::fs::remove_dir_all(&dir);
+}

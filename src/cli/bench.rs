@@ -244,9 +244,37 @@ fn bench_sort(
     if n == 0 {
         bail!("--n must be at least 1");
     }
+    // Sizes checked before anything is allocated: the device's largest buffer holds the
+    // keys (8 bytes each), and the host holds keys, values and two reference copies.
+    let max_alloc = ctx.info().max_memory_allocation_size;
+    if u64::from(n) * 8 > max_alloc {
+        bail!(
+            "--n {n}: the keys need {} MiB in one device buffer, above {}'s largest \
+             allocation ({} MiB); use --n {} or less",
+            (u64::from(n) * 8) >> 20,
+            ctx.info().name,
+            max_alloc >> 20,
+            max_alloc / 8
+        );
+    }
+    let host_bytes = u64::from(n) * (8 + 4 + 2 * 16);
+    let mut keys: Vec<u64> = Vec::new();
+    let mut values: Vec<u32> = Vec::new();
+    let mut probe: Vec<u8> = Vec::new();
+    if keys.try_reserve_exact(n as usize).is_err()
+        || values.try_reserve_exact(n as usize).is_err()
+        || probe.try_reserve_exact(host_bytes as usize).is_err()
+    {
+        bail!(
+            "--n {n}: the benchmark needs ~{} MiB of host memory for the keys and their \
+             CPU reference sorts, more than this machine can allocate; use a smaller --n",
+            host_bytes >> 20
+        );
+    }
+    drop(probe);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-    let keys: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
-    let values: Vec<u32> = (0..n).collect();
+    keys.extend((0..n).map(|_| rng.next_u64()));
+    values.extend(0..n);
     let mask = if bits.end - bits.start == 64 {
         u64::MAX
     } else {

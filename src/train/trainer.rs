@@ -289,6 +289,17 @@ impl Trainer {
             }
         };
         host.validate()?;
+        let budget = voxel_budget(ctx, &cfg);
+        if cfg.layout != Layout::Fixed && host.num_voxels() as u64 > budget {
+            return Err(Error::Invalid(format!(
+                "the voxel budget ({budget}) is below the {} voxels the run starts with \
+                 (the level-{} grid's voxels the training views see): no voxel could ever be \
+                 subdivided; raise --max-voxels (set max_voxels=0 for the device's budget), \
+                 lower grid_level, or use layout=fixed",
+                host.num_voxels(),
+                cfg.grid_level
+            )));
+        }
         let mut scene = SceneGpu::upload(ctx, &host)?;
         scene.sh_degree = 0;
         let grads = Gradients::new(ctx, &scene)?;
@@ -313,7 +324,6 @@ impl Trainer {
         let gt = ctx.buffer_from("train.ground-truth", &planar)?;
         let float_atomics = std::env::var("SVRASTER_NO_FLOAT_ATOMICS").is_err();
         let schedule = cfg.schedule();
-        let budget = voxel_budget(ctx, &cfg);
         Ok(Trainer {
             ctx: ctx.clone(),
             rng: rand_pcg::Pcg64::seed_from_u64(cfg.seed),
