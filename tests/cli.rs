@@ -52,6 +52,39 @@ fn demo_then_render_and_bench() {
         assert!(dir.join(format!("renders/r_{i}.png")).is_file());
         assert!(dir.join(format!("renders/r_{i}_depth.png")).is_file());
     }
+    // Metric depth: 16-bit counts × the sidecar's scale are camera depths inside the
+    // sidecar's range (0: no surface); the normal map is black where there is no surface.
+    let side: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("renders/r_0_depth.json")).unwrap())
+            .unwrap();
+    let scale = side["scale"].as_f64().unwrap();
+    let (lo, hi) = (
+        side["min_depth"].as_f64().unwrap(),
+        side["max_depth"].as_f64().unwrap(),
+    );
+    assert!(scale > 0.0 && 0.0 < lo && lo <= hi, "{side}");
+    let d16 = image::open(dir.join("renders/r_0_depth16.png"))
+        .unwrap()
+        .to_luma16();
+    let alpha_px: Vec<&image::Luma<u16>> = d16.pixels().filter(|p| p.0[0] > 0).collect();
+    assert!(!alpha_px.is_empty() && alpha_px.len() < (d16.width() * d16.height()) as usize);
+    for p in alpha_px {
+        let z = f64::from(p.0[0]) * scale;
+        assert!(
+            z >= lo - scale && z <= hi + scale,
+            "{z} outside [{lo}, {hi}]"
+        );
+    }
+    let nrm = image::open(dir.join("renders/r_0_normal.png"))
+        .unwrap()
+        .to_rgb8();
+    for (x, y, p) in d16.enumerate_pixels() {
+        if p.0[0] == 0 {
+            // No surface (alpha ≤ 0.5): the normal colour is at most half its value.
+            assert!(nrm.get_pixel(x, y).0.iter().all(|&c| c <= 128), "({x},{y})");
+        }
+    }
+    assert_eq!(nrm.get_pixel(0, 0).0, [0, 0, 0], "the corner is background");
 
     let r = dir.join("val_renders");
     let (ok, out, err) = svraster(&[
@@ -75,6 +108,30 @@ fn demo_then_render_and_bench() {
         .to_rgb8();
     assert_eq!(img.dimensions(), (16, 16));
     assert!(r.join("r_0_normal.png").is_file());
+
+    // Two frames with one file stem get distinct outputs (none overwrites the other).
+    let tj = dir.join("data/transforms_val.json");
+    let mut t: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&tj).unwrap()).unwrap();
+    let first = t["frames"][0].clone();
+    t["frames"].as_array_mut().unwrap().push(first);
+    let n = t["frames"].as_array().unwrap().len();
+    std::fs::write(&tj, t.to_string()).unwrap();
+    let r2 = dir.join("dup_renders");
+    let (ok, _, err) = svraster(&[
+        "render",
+        dir.join("run").to_str().unwrap(),
+        "--data",
+        dir.join("data").to_str().unwrap(),
+        "--split",
+        "val",
+        "--out",
+        r2.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(r2.join("r_0_0.png").is_file() && r2.join(format!("r_0_{}.png", n - 1)).is_file());
+    assert!(!r2.join("r_0.png").exists());
+    assert_eq!(std::fs::read_dir(&r2).unwrap().count(), n);
 
     let (ok, out, err) = svraster(&[
         "bench",

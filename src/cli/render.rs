@@ -31,10 +31,13 @@ pub fn load_model(model: &Path) -> anyhow::Result<Scene> {
     Ok(checkpoint::load(&p)?)
 }
 
-/// Writes `NAME.png` (rgb) and, on request, `NAME_depth.png` (expected depth, near =
-/// bright, background black, scaled between the 1st and 99th percentile) and
-/// `NAME_normal.png` (outward unit normal −∇density/|∇density| mapped to colour,
-/// n·0.5 + 0.5; the rendered normal channel is the paper's ∇density, which points into
+/// Writes `NAME.png` (rgb); with `depth`, the metric depth `NAME_depth16.png` (16-bit:
+/// camera-z depth = value × scale, with `scale` and the meaning in `NAME_depth.json`;
+/// 0 where alpha ≤ 0.5, i.e. no surface) and its visualisation `NAME_depth.png` (8-bit:
+/// near = bright, 1st–99th percentile of the frame's depths mapped to 1.0–0.2, no
+/// surface = 0); with `normal`, `NAME_normal.png` (outward unit normal
+/// −∇density/|∇density| mapped to colour n·0.5 + 0.5, times alpha: black where there is
+/// no surface; the rendered normal channel is the paper's ∇density, which points into
 /// surfaces).
 pub fn write_image(
     out: &Path,
@@ -83,20 +86,51 @@ pub fn write_image(
             img.height,
             &g,
         )?;
+        // Metric: the largest depth maps to 65 535 (at least 1 count per 1e-6 units).
+        let far = valid.last().copied().unwrap_or(0.0).max(0.0);
+        let scale = (f64::from(far) / 65535.0).max(1e-6);
+        let q: Vec<u16> = d
+            .iter()
+            .map(|&v| {
+                if v.is_finite() && v > 0.0 {
+                    (f64::from(v) / scale).round().clamp(1.0, 65535.0) as u16
+                } else {
+                    0
+                }
+            })
+            .collect();
+        image::save_gray16_png(
+            &out.join(format!("{name}_depth16.png")),
+            img.width,
+            img.height,
+            &q,
+        )?;
+        let side = serde_json::json!({
+            "image": format!("{name}_depth16.png"),
+            "scale": scale,
+            "meaning": "camera-z depth in world units = value * scale; 0 = no surface (alpha <= 0.5)",
+            "min_depth": valid.first(),
+            "max_depth": valid.last(),
+        });
+        let p = out.join(format!("{name}_depth.json"));
+        std::fs::write(&p, serde_json::to_string_pretty(&side)?)
+            .with_context(|| format!("cannot write {}", p.display()))?;
     }
     if normal {
         let n: Vec<[f32; 3]> = img
             .normal
             .iter()
-            .map(|v| {
+            .zip(&img.alpha)
+            .map(|(v, &a)| {
                 let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                let a = a.clamp(0.0, 1.0);
                 if l < 1e-6 {
                     [0.0; 3]
                 } else {
                     [
-                        -v[0] / l * 0.5 + 0.5,
-                        -v[1] / l * 0.5 + 0.5,
-                        -v[2] / l * 0.5 + 0.5,
+                        (-v[0] / l * 0.5 + 0.5) * a,
+                        (-v[1] / l * 0.5 + 0.5) * a,
+                        (-v[2] / l * 0.5 + 0.5) * a,
                     ]
                 }
             })
@@ -109,6 +143,22 @@ pub fn write_image(
         )?;
     }
     Ok(())
+}
+
+/// Output names for frames: the frame's file stem, or `STEM_INDEX` (its index in the
+/// split) where two frames share a stem, so that no output overwrites another.
+pub fn output_names(names: &[&str]) -> Vec<String> {
+    names
+        .iter()
+        .enumerate()
+        .map(|(i, n)| {
+            if names.iter().filter(|m| *m == n).count() > 1 {
+                format!("{n}_{i}")
+            } else {
+                n.to_string()
+            }
+        })
+        .collect()
 }
 
 pub struct RenderArgs {
@@ -143,13 +193,19 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
     let mut r = Renderer::new(ctx)?;
     let mut total_psnr = 0.0;
     let mut ms = 0.0;
+    let names = output_names(
+        &ds.frames
+            .iter()
+            .map(|f| f.name.as_str())
+            .collect::<Vec<_>>(),
+    );
     for (i, f) in ds.frames.iter().enumerate() {
         let t = Instant::now();
         let (img, _) = r.render(&gpu, &f.camera, &opts)?;
         ms += t.elapsed().as_secs_f64() * 1e3;
         let p = svraster::eval::psnr(&img.rgb, &f.rgb);
         total_psnr += p;
-        write_image(&a.out, &f.name, &img, a.depth, a.normal)?;
+        write_image(&a.out, &names[i], &img, a.depth, a.normal)?;
         eprint!(
             "\r[{}/{}] {}: PSNR {p:.2} dB        ",
             i + 1,

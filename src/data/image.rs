@@ -37,6 +37,14 @@ pub fn save_gray_png(path: &Path, width: u32, height: u32, gray: &[f32]) -> Resu
     save_png(path, width, height, &bytes, ExtendedColorType::L8)
 }
 
+/// Writes a 16-bit grayscale PNG from `width × height` row-major values (the encoder
+/// takes native-endian samples and stores them big-endian, as PNG requires).
+pub fn save_gray16_png(path: &Path, width: u32, height: u32, gray: &[u16]) -> Result<()> {
+    check_len(path, width, height, gray.len())?;
+    let bytes: Vec<u8> = gray.iter().flat_map(|v| v.to_ne_bytes()).collect();
+    save_png(path, width, height, &bytes, ExtendedColorType::L16)
+}
+
 /// Reads a PNG as `(width, height, rgba)`: row-major, values in `[0, 1]`. Gray images
 /// are replicated to RGB; alpha is 1 where the file has none. The error names the file
 /// when it is missing or cannot be decoded.
