@@ -71,7 +71,8 @@ fn adaptive_schedule_follows_the_paper_and_scales() {
     c.set("iters=300").unwrap();
     let s = c.schedule();
     let iters: Vec<u32> = s.adapt.iter().map(|a| a.iter).collect();
-    assert_eq!(iters, (7..=18).map(|k| k * 15).collect::<Vec<_>>());
+    // Steps at least adapt_min_spacing = 100 iterations apart (15 + 100k).
+    assert_eq!(iters, vec![115, 215]);
     // No step of a 300-iteration run has the 500 iterations after it that subdivided
     // children need (subdivide_min_after): it only prunes. Without that guard it would
     // subdivide up to 0.75 of the run.
@@ -85,7 +86,12 @@ fn adaptive_schedule_follows_the_paper_and_scales() {
         .into_iter()
         .rfind(|a| a.subdivide)
         .unwrap();
-    assert_eq!(last.iter, 225);
+    assert_eq!(last.iter, 215);
+    // Without the spacing floor: a step every 15 iterations (5 % of the run).
+    c2.set("adapt_min_spacing=0").unwrap();
+    let iters: Vec<u32> = c2.schedule().adapt.iter().map(|a| a.iter).collect();
+    assert_eq!(iters, (7..=18).map(|k| k * 15).collect::<Vec<_>>());
+    c2.set("adapt_min_spacing=100").unwrap();
     // 1 000 iterations: steps up to 500 subdivide (the first at 100).
     c2.set("subdivide_min_after=500").unwrap();
     c2.set("iters=1000").unwrap();
@@ -96,7 +102,7 @@ fn adaptive_schedule_follows_the_paper_and_scales() {
         .filter(|a| a.subdivide)
         .map(|a| a.iter)
         .collect();
-    assert_eq!(sub, (2..=10).map(|k| k * 50).collect::<Vec<_>>());
+    assert_eq!(sub, vec![150, 250, 350, 450]);
     // The paper's learning rate unscaled needs 400 iterations: a 300-iteration run
     // never adapts.
     c.set("lr_geo_scale_max=1").unwrap();
@@ -136,6 +142,7 @@ fn adaptive_layout_models_only_what_the_scene_requires() {
     // to its end (the default stops 500 iterations before it).
     cfg.subdivide_percent = 0.2;
     cfg.subdivide_min_after = 0;
+    cfg.adapt_min_spacing = 0;
     let dense = uniform_grid(&cfg).unwrap().num_voxels();
     let mut t = Trainer::new(&ctx, cfg.clone(), &train, None).unwrap();
     let initial = t.voxels() as usize;
@@ -186,6 +193,7 @@ fn voxel_budget_stops_subdivision() {
     let mut cfg = TrainConfig::preset("quick").unwrap();
     cfg.iters = 80;
     cfg.subdivide_min_after = 0;
+    cfg.adapt_min_spacing = 0;
     cfg.geo_init = -2.0; // adaptive steps from iteration 20 (see the schedule test)
     cfg.grid_level = 4;
     cfg.subdivide_percent = 0.5;
@@ -221,6 +229,7 @@ fn uniform_layout_subdivides_everything_to_its_level() {
     let mut cfg = TrainConfig::preset("quick").unwrap();
     cfg.iters = 60;
     cfg.subdivide_min_after = 0;
+    cfg.adapt_min_spacing = 0;
     cfg.geo_init = -2.0;
     cfg.grid_level = 3;
     cfg.layout = Layout::Uniform;

@@ -458,9 +458,12 @@ fn bench_trade_writes_table_json_and_chart() {
             "grid_level=3",
             "--set",
             "subdivide_percent=0.3",
-            // A 160-iteration run: subdivide anyway (the default waits for 500 to follow).
+            // A 160-iteration run: subdivide anyway (the default waits for 500 to follow),
+            // at steps 5 % of the run apart (the default: at least 100).
             "--set",
             "subdivide_min_after=0",
+            "--set",
+            "adapt_min_spacing=0",
             "--json",
         ];
         args.extend_from_slice(extra);
@@ -547,6 +550,8 @@ fn bench_trade_writes_table_json_and_chart() {
         "grid_level=3",
         "--set",
         "subdivide_min_after=0",
+        "--set",
+        "adapt_min_spacing=0",
         "--json",
     ]);
     assert!(ok, "{err3}");

@@ -74,6 +74,12 @@ pub struct TrainConfig {
     /// (400 iterations with the paper's values; 100 with the quick preset).
     pub adapt_every: f64,
     pub adapt_from: f64,
+    /// Adaptive steps are at least this many iterations apart, however short the run:
+    /// each step renders every training view for its statistics, and a step every few
+    /// iterations measures a model that has barely changed. Measured on lego 100², 300
+    /// iterations: 12 steps 27.24 dB val, 2 steps (100 apart) 27.22 dB with 57 % of the
+    /// step time (README).
+    pub adapt_min_spacing: u32,
     /// Pruning at adaptive steps up to `prune_until`, threshold on the voxel's max blend
     /// weight ramped linearly from `prune_thres_init` (first) to `prune_thres_final` (last).
     pub prune_until: f64,
@@ -136,6 +142,7 @@ impl Default for TrainConfig {
             layout: Layout::Adaptive,
             adapt_every: 0.05,
             adapt_from: 0.05,
+            adapt_min_spacing: 100,
             prune_until: 0.9,
             prune_thres_init: 1e-4,
             prune_thres_final: 0.05,
@@ -357,9 +364,15 @@ impl TrainConfig {
             let prune_until = at(self.prune_until, n);
             let subdivide_until = at(self.subdivide_until, n);
             let warmup = ((-self.geo_init).max(0.0) / self.lr_geo_used()).ceil() as u32;
+            // Step k at from + k·every (iterations), every ≥ adapt_min_spacing.
+            let every = (self.adapt_every * n as f64)
+                .max(f64::from(self.adapt_min_spacing))
+                .max(1.0);
             let mut k = 0;
             loop {
-                let it = at(self.adapt_from + self.adapt_every * k as f64, n);
+                let it = (self.adapt_from * n as f64 + every * k as f64)
+                    .round()
+                    .clamp(0.0, n as f64) as u32;
                 k += 1;
                 if it >= n || it > prune_until.max(subdivide_until) {
                     break;
