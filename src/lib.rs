@@ -9,6 +9,7 @@
 pub mod data;
 pub mod error;
 pub mod eval;
+pub mod fsio;
 pub mod gpu;
 pub mod raster;
 pub mod scan;

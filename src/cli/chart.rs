@@ -4,10 +4,8 @@
 //! Only `image` (for the PNG encoder and the pixel buffer) is used; all drawing (Bresenham
 //! lines, filled markers, text) is done here.
 
-use std::ffi::OsString;
-use std::io::{Cursor, Write};
+use std::io::Cursor;
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use anyhow::{bail, Context as _};
 use image::{Rgb, RgbImage};
@@ -490,33 +488,10 @@ fn write_png(path: &Path, img: &RgbImage) -> anyhow::Result<()> {
     write_atomic(path, &bytes)
 }
 
-/// Writes `bytes` to a hidden temporary file next to `path`, fsyncs it and renames it over
-/// `path`; the temporary file is removed on failure.
+/// Writes `bytes` to `path` atomically ([`svraster::fsio::write_atomic`]).
 fn write_atomic(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    static SEQ: AtomicU64 = AtomicU64::new(0);
-    let Some(name) = path.file_name() else {
-        bail!("cannot write chart {}: not a file path", path.display());
-    };
-    let mut tmp_name = OsString::from(".");
-    tmp_name.push(name);
-    tmp_name.push(format!(
-        ".{}.{}.tmp",
-        std::process::id(),
-        SEQ.fetch_add(1, Ordering::Relaxed)
-    ));
-    let tmp = path.with_file_name(tmp_name);
-    let res = (|| -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        drop(f);
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(e) = res {
-        let _ = std::fs::remove_file(&tmp);
-        bail!("cannot write chart {}: {e}", path.display());
-    }
-    Ok(())
+    svraster::fsio::write_atomic(path, bytes)
+        .map_err(|e| anyhow::anyhow!("cannot write chart {}: {e}", path.display()))
 }
 
 fn legend_name(se: &Series, i: usize) -> String {

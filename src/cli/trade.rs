@@ -235,10 +235,7 @@ fn budget_capped(run: &Path) -> anyhow::Result<bool> {
 }
 
 fn write(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let tmp = path.with_extension("tmp");
-    std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))?;
-    Ok(())
+    Ok(svraster::fsio::write_atomic(path, bytes)?)
 }
 
 /// The markdown table of the rows.

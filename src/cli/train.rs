@@ -80,37 +80,11 @@ pub struct TrainArgs {
     pub resume: bool,
 }
 
-/// Writes `bytes` to `path` and flushes them to disk (no rename).
-fn write_synced(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
-    let mut f = std::fs::File::create(path)?;
-    f.write_all(bytes)?;
-    f.sync_all()
-}
+use svraster::fsio::{sync_dir, tmp_path, write_synced};
 
-/// Flushes a directory's entries (renames) to disk.
-fn sync_dir(dir: &Path) -> std::io::Result<()> {
-    std::fs::File::open(dir)?.sync_all()
-}
-
-/// Writes `bytes` to `path` atomically (temporary file, fsync, rename, directory fsync).
+/// Writes `bytes` to `path` atomically ([`svraster::fsio::write_atomic`]).
 fn atomic_write(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    let tmp = tmp_path(path);
-    let res = write_synced(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
-    if let Err(e) = res {
-        let _ = std::fs::remove_file(&tmp);
-        bail!("cannot write {}: {e}", path.display());
-    }
-    if let Some(dir) = path.parent() {
-        let _ = sync_dir(dir);
-    }
-    Ok(())
-}
-
-/// `name.ext` → `name.ext.tmp`.
-fn tmp_path(path: &Path) -> PathBuf {
-    let mut s = path.as_os_str().to_owned();
-    s.push(".tmp");
-    PathBuf::from(s)
+    Ok(svraster::fsio::write_atomic(path, bytes)?)
 }
 
 fn fnv64(bytes: &[u8]) -> u64 {
@@ -146,23 +120,20 @@ fn save_run(run: &Path, trainer: &mut Trainer) -> anyhow::Result<()> {
     let model_path = run.join("model.safetensors");
     let opt_path = run.join("optimizer.bin");
     let (model_tmp, opt_tmp) = (tmp_path(&model_path), tmp_path(&opt_path));
-    let written = write_synced(&model_tmp, &model)
-        .map_err(|e| (model_tmp.clone(), e))
-        .and_then(|()| write_synced(&opt_tmp, &opt).map_err(|e| (opt_tmp.clone(), e)));
-    if let Err((path, e)) = written {
+    let written = write_synced(&model_tmp, &model).and_then(|()| write_synced(&opt_tmp, &opt));
+    if let Err(e) = written {
         let _ = std::fs::remove_file(&model_tmp);
         let _ = std::fs::remove_file(&opt_tmp);
         bail!(
-            "cannot write the checkpoint ({}: {e}); the previous checkpoint in {} is \
+            "cannot write the checkpoint ({e}); the previous checkpoint in {} is \
              unchanged and resumable (free space, then --resume)",
-            path.display(),
             run.display()
         );
     }
     std::fs::rename(&opt_tmp, &opt_path)
         .and_then(|()| std::fs::rename(&model_tmp, &model_path))
-        .and_then(|()| sync_dir(run))
         .with_context(|| format!("cannot install the checkpoint in {}", run.display()))?;
+    sync_dir(run);
     Ok(())
 }
 

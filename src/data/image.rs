@@ -6,9 +6,7 @@
 //! over the destination, so a failed write never leaves a half-written file behind.
 //! [`load_rgba`] reads 8- and 16-bit gray, gray+alpha, RGB and RGBA PNGs.
 
-use std::io::Write;
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use image::codecs::png::PngEncoder;
 use image::{ExtendedColorType, ImageEncoder, ImageFormat};
@@ -88,35 +86,9 @@ pub fn load_rgba(path: &Path) -> Result<(u32, u32, Vec<[f32; 4]>)> {
     Ok((w, h, pixels))
 }
 
-/// Writes `bytes` to `path` atomically (temporary file in the same folder + rename).
-/// On error the temporary file is removed and `path` is untouched.
+/// Writes `bytes` to `path` atomically ([`crate::fsio::write_atomic`]).
 pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let name = path.file_name().ok_or_else(|| {
-        Error::Invalid(format!("output path {} has no file name", path.display()))
-    })?;
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let tmp = dir.join(format!(
-        ".{}.tmp-{}-{}",
-        name.to_string_lossy(),
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    let result = (|| {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()?;
-        drop(f);
-        std::fs::rename(&tmp, path)
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(io_error(path, e));
-    }
-    Ok(())
+    crate::fsio::write_atomic(path, bytes)
 }
 
 pub(crate) fn io_error(path: &Path, error: std::io::Error) -> Error {

@@ -62,10 +62,9 @@
 //!     return meta, t  # t["octpath"], t["octlevel"], t["geo_grid_pts"], t["sh0"], t["shs"]
 //! ```
 
-use std::fs::{self, File, OpenOptions};
-use std::io::{self, BufWriter, Write};
+use std::fs;
+use std::io::{self, Write};
 use std::path::Path;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use serde::de::{Deserialize, Deserializer, MapAccess, Visitor};
 use serde_json::Value;
@@ -95,67 +94,17 @@ const TENSORS: [(&str, &str, usize); 5] = [
 /// is validated first; an invalid scene (e.g. containing NaN) is refused.
 pub fn save(scene: &Scene, path: &Path) -> Result<()> {
     let header = encode_header(scene)?;
-    let io_err = |kind: io::ErrorKind, msg: String| Error::Io {
-        path: path.display().to_string(),
-        error: io::Error::new(kind, msg),
-    };
-    let file_name = path.file_name().ok_or_else(|| {
-        Error::Invalid(format!(
-            "cannot save a checkpoint to {}: not a file path",
-            path.display()
-        ))
-    })?;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    if !dir.is_dir() {
-        return Err(io_err(
-            io::ErrorKind::NotFound,
-            format!(
-                "cannot save the checkpoint: directory {} does not exist",
-                dir.display()
-            ),
-        ));
-    }
-    static COUNTER: AtomicU64 = AtomicU64::new(0);
-    let tmp = dir.join(format!(
-        ".{}.{}.{}.tmp",
-        file_name.to_string_lossy(),
-        std::process::id(),
-        COUNTER.fetch_add(1, Ordering::Relaxed)
-    ));
-    let file = OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&tmp)
-        .map_err(|e| {
-            io_err(
-                e.kind(),
-                format!("cannot create temporary file {}: {e}", tmp.display()),
-            )
-        })?;
-    let written = (|| -> io::Result<()> {
-        let mut w = BufWriter::with_capacity(1 << 20, file);
+    crate::fsio::write_atomic_with(path, |w| {
         w.write_all(&header)?;
-        write_data(scene, &mut w)?;
-        let file = w.into_inner().map_err(|e| e.into_error())?;
-        file.sync_all()?;
-        drop(file);
-        fs::rename(&tmp, path)
-    })();
-    if let Err(e) = written {
-        let _ = fs::remove_file(&tmp);
-        return Err(io_err(
-            e.kind(),
-            format!("writing the checkpoint (via {}): {e}", tmp.display()),
-        ));
-    }
-    // Make the rename itself durable (best effort: not every platform can sync a directory).
-    if let Ok(d) = File::open(dir) {
-        let _ = d.sync_all();
-    }
-    Ok(())
+        write_data(scene, w)
+    })
+    .map_err(|e| match e {
+        Error::Io { path, error } => Error::Io {
+            path,
+            error: io::Error::new(error.kind(), format!("cannot save the checkpoint: {error}")),
+        },
+        e => e,
+    })
 }
 
 /// Reads and fully validates a checkpoint written by [`save`] (or any tool following the
@@ -257,7 +206,7 @@ fn num(v: f32) -> String {
 }
 
 /// Writes the data buffer (tensors in [`TENSORS`] order, little-endian).
-fn write_data(scene: &Scene, w: &mut impl Write) -> io::Result<()> {
+fn write_data<W: Write + ?Sized>(scene: &Scene, w: &mut W) -> io::Result<()> {
     if cfg!(target_endian = "little") {
         w.write_all(bytemuck::cast_slice(&scene.octpath))?;
         w.write_all(bytemuck::cast_slice(&scene.geo))?;
