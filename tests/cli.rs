@@ -799,6 +799,26 @@ fn demo_keeps_directories_it_did_not_make() {
     assert_eq!(std::fs::read(run.join("precious.txt")).unwrap(), b"mine");
     assert!(!dir.join("data").exists(), "nothing written");
 
+    // A demo directory from before the mark (its run trained on its own data/) is the
+    // demo's: it is replaced.
+    let legacy = dir.join("legacy");
+    std::fs::create_dir_all(legacy.join("run")).unwrap();
+    std::fs::create_dir_all(legacy.join("data")).unwrap();
+    let data_abs = std::fs::canonicalize(legacy.join("data")).unwrap();
+    std::fs::write(
+        legacy.join("run/config.json"),
+        serde_json::json!({ "data": data_abs }).to_string(),
+    )
+    .unwrap();
+    let l = legacy.to_str().unwrap();
+    let (ok, _, err) = svraster(&[
+        "demo", "--out", l, "--size", "16", "--iters", "5", "--level", "3",
+    ]);
+    assert!(ok, "{err}");
+    assert!(
+        legacy.join(".svraster-demo").is_file() && legacy.join("run/model.safetensors").is_file()
+    );
+
     let fresh = dir.join("fresh");
     let f = fresh.to_str().unwrap();
     let (ok, _, err) = svraster(&["demo", "--out", f, "--level", "0", "--iters", "5"]);

@@ -3,7 +3,9 @@
 mod bench;
 mod chart;
 mod info;
+mod progress;
 mod render;
+mod run_dir;
 mod trade;
 mod train;
 

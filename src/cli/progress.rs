@@ -1,0 +1,75 @@
+//! Progress reporting of long runs: the iteration rate over a moving window (for the
+//! ETA) and durations for people.
+
+/// Iteration rate over a moving window (the last ~30 s, at least 2 samples), so the ETA
+/// follows the run's current speed (the first iterations carry warm-up and a larger
+/// model, adaptive steps come and go) instead of its mean since the start.
+pub(super) struct RateWindow {
+    samples: std::collections::VecDeque<(u32, f64)>,
+    window_s: f64,
+}
+
+impl RateWindow {
+    pub(super) fn new(window_s: f64) -> Self {
+        RateWindow {
+            samples: std::collections::VecDeque::new(),
+            window_s,
+        }
+    }
+
+    /// Records that iteration `iter` finished at time `t` (seconds).
+    pub(super) fn push(&mut self, iter: u32, t: f64) {
+        self.samples.push_back((iter, t));
+        while self.samples.len() > 2 && t - self.samples[1].1 >= self.window_s {
+            self.samples.pop_front();
+        }
+    }
+
+    /// Iterations per second over the window (NaN before two samples).
+    pub(super) fn rate(&self) -> f64 {
+        match (self.samples.front(), self.samples.back()) {
+            (Some(a), Some(b)) if b.1 > a.1 => f64::from(b.0 - a.0) / (b.1 - a.1),
+            _ => f64::NAN,
+        }
+    }
+}
+
+pub(super) fn fmt_duration(s: f64) -> String {
+    if !s.is_finite() {
+        return "?".into();
+    }
+    let s = s.round() as u64;
+    if s >= 3600 {
+        format!("{}h{:02}m", s / 3600, (s % 3600) / 60)
+    } else if s >= 60 {
+        format!("{}m{:02}s", s / 60, s % 60)
+    } else {
+        format!("{s}s")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::RateWindow;
+
+    #[test]
+    fn eta_follows_the_current_rate() {
+        // 10 slow iterations (1 s each), then 200 fast ones (0.1 s each).
+        let mut w = RateWindow::new(5.0);
+        let mut t = 0.0;
+        w.push(0, t);
+        assert!(w.rate().is_nan());
+        for i in 1..=210u32 {
+            t += if i <= 10 { 1.0 } else { 0.1 };
+            w.push(i, t);
+        }
+        // The mean since the start would say 210 / 30 s = 7 it/s.
+        assert!((w.rate() - 10.0).abs() < 1e-6, "{}", w.rate());
+        // A run that slows down is seen within the window.
+        for i in 211..=260u32 {
+            t += 1.0;
+            w.push(i, t);
+        }
+        assert!((w.rate() - 1.0).abs() < 1e-6, "{}", w.rate());
+    }
+}
