@@ -1,9 +1,14 @@
 //! Progress reporting of long runs: the iteration rate over a moving window (for the
 //! ETA) and durations for people.
 
-/// Iteration rate over a moving window (the last ~30 s, at least 2 samples), so the ETA
-/// follows the run's current speed (the first iterations carry warm-up and a larger
-/// model, adaptive steps come and go) instead of its mean since the start.
+/// Iteration rate over a moving window (the last ~30 s, and never fewer than 200
+/// iterations, so that one adaptive step — tens of seconds for one iteration — is
+/// amortised rather than read as the rate), so the ETA follows the run's current speed
+/// (the first iterations carry warm-up and a larger model) instead of its mean since the
+/// start.
+/// Fewest iterations the rate window spans (once the run has them).
+const MIN_ITERS: u32 = 200;
+
 pub(super) struct RateWindow {
     samples: std::collections::VecDeque<(u32, f64)>,
     window_s: f64,
@@ -20,7 +25,10 @@ impl RateWindow {
     /// Records that iteration `iter` finished at time `t` (seconds).
     pub(super) fn push(&mut self, iter: u32, t: f64) {
         self.samples.push_back((iter, t));
-        while self.samples.len() > 2 && t - self.samples[1].1 >= self.window_s {
+        while self.samples.len() > 2
+            && t - self.samples[1].1 >= self.window_s
+            && iter - self.samples[1].0 >= MIN_ITERS
+        {
             self.samples.pop_front();
         }
     }
@@ -63,10 +71,17 @@ mod tests {
             t += if i <= 10 { 1.0 } else { 0.1 };
             w.push(i, t);
         }
-        // The mean since the start would say 210 / 30 s = 7 it/s.
+        // The mean since the start would say 210 / 30 s = 7 it/s; the last 200
+        // iterations took 20 s.
         assert!((w.rate() - 10.0).abs() < 1e-6, "{}", w.rate());
-        // A run that slows down is seen within the window.
-        for i in 211..=260u32 {
+        // One 35 s pause (an adaptive step) is amortised over the last 200 iterations,
+        // not read as a rate of 1/35 it/s.
+        t += 35.0;
+        w.push(211, t);
+        let r = w.rate();
+        assert!(r > 3.0 && r < 10.0, "{r}");
+        // A run that slows down for good is seen within the window.
+        for i in 212..=600u32 {
             t += 1.0;
             w.push(i, t);
         }
