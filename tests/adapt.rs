@@ -4,11 +4,8 @@
 
 mod common;
 
-use common::{context, finish};
+use common::{context, finish, mean_psnr};
 use svraster::data::{self, demo};
-use svraster::gpu::Context;
-use svraster::raster::RenderOptions;
-use svraster::scene::Scene;
 use svraster::train::config::{Layout, TrainConfig};
 use svraster::train::trainer::{uniform_grid, AdaptReport, Trainer};
 
@@ -28,19 +25,6 @@ fn demo_data(name: &str, size: u32) -> std::path::PathBuf {
     )
     .unwrap();
     dir
-}
-
-/// Mean PSNR of `scene` over a split (the metric every report uses).
-fn mean_psnr(ctx: &Context, scene: &Scene, ds: &data::blender::Dataset) -> f64 {
-    svraster::eval::evaluate(
-        ctx,
-        scene,
-        ds,
-        &RenderOptions::default(),
-        |_, _, _, _, _| {},
-    )
-    .unwrap()
-    .psnr
 }
 
 #[test]

@@ -228,3 +228,18 @@ pub fn scattered_scene(rng: &mut Rng, n: usize, level: u32, degree: u32) -> Scen
     s.background = [0.4, 0.5, 0.6];
     s
 }
+
+/// Mean PSNR of `scene` over a split at the model's default render options (the metric
+/// every report uses, `svraster::eval::evaluate`).
+#[allow(dead_code)]
+pub fn mean_psnr(ctx: &Context, scene: &Scene, ds: &svraster::data::blender::Dataset) -> f64 {
+    svraster::eval::evaluate(
+        ctx,
+        scene,
+        ds,
+        &svraster::raster::RenderOptions::default(),
+        |_, _, _, _, _| {},
+    )
+    .unwrap()
+    .psnr
+}
