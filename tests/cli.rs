@@ -48,6 +48,13 @@ fn demo_then_render_and_bench() {
     ] {
         assert!(dir.join("run").join(f).is_file(), "missing run/{f}");
     }
+    // The training curves (PSNR, loss, voxels: three panels).
+    let curves = image::open(dir.join("run/training.png")).expect("run/training.png decodes");
+    assert!(
+        curves.width() >= 3 * curves.height() / 2,
+        "{:?}",
+        (curves.width(), curves.height())
+    );
     for i in 0..10 {
         assert!(dir.join(format!("renders/r_{i}.png")).is_file());
         assert!(dir.join(format!("renders/r_{i}_depth.png")).is_file());

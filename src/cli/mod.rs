@@ -1,8 +1,8 @@
 //! clap commands.
 
 mod bench;
-mod chart;
 mod info;
+mod plot;
 mod progress;
 mod render;
 mod run_dir;

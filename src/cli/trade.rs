@@ -10,7 +10,7 @@ use svraster::gpu::Context;
 use svraster::raster::RenderOptions;
 use svraster::scene::checkpoint;
 
-use super::chart::{save_grid, Chart, Point, Series};
+use super::plot::{save_row, Chart, Point, Series};
 use super::train::{evaluate, run_train, TrainArgs};
 
 /// Arguments of `bench trade`.
@@ -179,7 +179,7 @@ fn write_outputs(
         &a.out.join("trade.json"),
         serde_json::to_string_pretty(&doc)?.as_bytes(),
     )?;
-    save_grid(&charts(rows, &a.split), &a.out.join("trade.png"), 640, 480)?;
+    save_row(&charts(rows, &a.split), &a.out.join("trade.png"), 640, 480)?;
     Ok(doc)
 }
 
@@ -302,14 +302,16 @@ fn charts(rows: &[TradeRow], split: &str) -> Vec<Chart> {
             x_label: "training time (s)".into(),
             y_label: y.clone(),
             series: series(&|r| r.train_s),
-            x_log: false,
+            markers: true,
+            ..Default::default()
         },
         Chart {
             title: "quality vs frame time".into(),
             x_label: "ms per frame".into(),
             y_label: y.clone(),
             series: series(&|r| r.ms_per_frame),
-            x_log: false,
+            markers: true,
+            ..Default::default()
         },
         Chart {
             title: "quality vs model size".into(),
@@ -317,6 +319,8 @@ fn charts(rows: &[TradeRow], split: &str) -> Vec<Chart> {
             y_label: y,
             series: series(&|r| r.voxels as f64),
             x_log: true,
+            markers: true,
+            ..Default::default()
         },
     ]
 }

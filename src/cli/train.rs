@@ -227,6 +227,15 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     Ok(summary)
 }
 
+/// Redraws `RUN/training.png` from `RUN/stats.jsonl`. A chart that cannot be drawn is
+/// reported and training goes on (the statistics themselves are intact).
+fn curves(run: &Path) {
+    let png = run.join("training.png");
+    if let Err(e) = super::plot::training_chart(&run.join("stats.jsonl"), &png) {
+        eprintln!("warning: cannot draw {}: {e:#}", png.display());
+    }
+}
+
 /// Runs the remaining iterations with progress, stats.jsonl, checkpoints and Ctrl-C.
 fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
     catch_signals()?;
@@ -250,6 +259,7 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
         if INTERRUPTS.load(Ordering::SeqCst) > 0 {
             eprintln!();
             save_run(run, trainer)?;
+            curves(run);
             eprintln!(
                 "interrupted: saved iteration {} to {}; continue with --resume",
                 trainer.iter(),
@@ -306,6 +316,7 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
         if sched.checkpoints.contains(&info.iter) {
             trainer.check_finite()?;
             save_run(run, trainer)?;
+            curves(run);
         }
         let done = info.iter == cfg.iters;
         window.push(info.iter, t0.elapsed().as_secs_f64());
@@ -335,6 +346,7 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
     }
     trainer.check_finite()?;
     save_run(run, trainer)?;
+    curves(run);
     let secs = t0.elapsed().as_secs_f64();
     eprintln!(
         "trained {} iterations in {} → {}",
