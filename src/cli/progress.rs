@@ -1,5 +1,109 @@
-//! Progress reporting of long runs: the iteration rate over a moving window (for the
-//! ETA) and durations for people.
+//! Progress reporting of long runs: a progress bar on a terminal (`indicatif`), a plain
+//! line every ~30 s otherwise (logs, CI, batch jobs); the iteration rate over a moving
+//! window (for the ETA) and durations for people.
+
+use std::io::IsTerminal as _;
+use std::time::{Duration, Instant};
+
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+
+/// Seconds between the plain progress lines written when stderr is not a terminal.
+const PLAIN_EVERY_S: f64 = 30.0;
+
+/// Progress of `total` steps of one job on stderr: an `indicatif` bar when stderr is a
+/// terminal; otherwise a plain line for the first step, then at most one every ~30 s,
+/// and one for the last step.
+pub(super) struct Progress {
+    bar: Option<ProgressBar>,
+    label: String,
+    total: u64,
+    last_line: Option<Instant>,
+    quiet: bool,
+}
+
+impl Progress {
+    pub(super) fn new(label: &str, total: u64) -> Self {
+        let bar = std::io::stderr().is_terminal().then(|| {
+            let b = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
+            let style =
+                ProgressStyle::with_template("{prefix} {bar:24.cyan/blue} {pos}/{len} {msg}")
+                    .expect("a valid progress template")
+                    .progress_chars("=> ");
+            b.set_style(style);
+            b.set_prefix(label.to_string());
+            b
+        });
+        Progress {
+            bar,
+            label: label.into(),
+            total,
+            last_line: None,
+            quiet: false,
+        }
+    }
+
+    /// A progress that prints nothing.
+    pub(super) fn hidden() -> Self {
+        Progress {
+            bar: None,
+            label: String::new(),
+            total: 0,
+            last_line: None,
+            quiet: true,
+        }
+    }
+
+    /// Step `pos` of `total` is done; `msg` says how it went (rate, loss, ETA …).
+    pub(super) fn update(&mut self, pos: u64, msg: impl FnOnce() -> String) {
+        if self.quiet {
+            return;
+        }
+        if let Some(b) = &self.bar {
+            b.set_position(pos);
+            b.set_message(msg());
+            return;
+        }
+        let now = Instant::now();
+        if plain_line_due(self.last_line.map(|t| now - t), pos, self.total) {
+            eprintln!("{} {pos}/{} {}", self.label, self.total, msg());
+            self.last_line = Some(now);
+        }
+    }
+
+    /// A line of its own (an event: an adaptive step, a saved checkpoint), above the bar.
+    pub(super) fn line(&self, msg: &str) {
+        if self.quiet {
+            return;
+        }
+        match &self.bar {
+            Some(b) => b.println(msg),
+            None => eprintln!("{msg}"),
+        }
+    }
+
+    /// Replaces the bar by a plain line with its last state.
+    pub(super) fn finish(&self) {
+        if let Some(b) = &self.bar {
+            b.finish_and_clear();
+            eprintln!(
+                "{} {}/{} {}",
+                self.label,
+                b.position(),
+                self.total,
+                b.message()
+            );
+        }
+    }
+}
+
+/// Whether a plain (non-terminal) progress line is due for step `pos` of `total`, `since`
+/// the last one (None: none written yet).
+fn plain_line_due(since: Option<Duration>, pos: u64, total: u64) -> bool {
+    match since {
+        None => true,
+        Some(d) => pos >= total || d.as_secs_f64() >= PLAIN_EVERY_S,
+    }
+}
 
 /// Iteration rate over a moving window (the last ~30 s, and never fewer than 200
 /// iterations, so that one adaptive step — tens of seconds for one iteration — is
@@ -58,7 +162,17 @@ pub(super) fn fmt_duration(s: f64) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::RateWindow;
+    use super::{plain_line_due, RateWindow};
+    use std::time::Duration;
+
+    #[test]
+    fn plain_lines_first_last_and_every_30_s() {
+        let s = Duration::from_secs_f64;
+        assert!(plain_line_due(None, 1, 100));
+        assert!(!plain_line_due(Some(s(29.0)), 50, 100));
+        assert!(plain_line_due(Some(s(30.0)), 50, 100));
+        assert!(plain_line_due(Some(s(0.1)), 100, 100));
+    }
 
     #[test]
     fn eta_follows_the_current_rate() {

@@ -199,6 +199,7 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
             .map(|f| f.name.as_str())
             .collect::<Vec<_>>(),
     );
+    let mut progress = super::progress::Progress::new("render", ds.frames.len() as u64);
     for (i, f) in ds.frames.iter().enumerate() {
         let t = Instant::now();
         let (img, _) = r.render(&gpu, &f.camera, &opts)?;
@@ -206,14 +207,9 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
         let p = svraster::eval::psnr(&img.rgb, &f.rgb);
         total_psnr += p;
         write_image(&a.out, &names[i], &img, a.depth, a.normal)?;
-        eprint!(
-            "\r[{}/{}] {}: PSNR {p:.2} dB        ",
-            i + 1,
-            ds.frames.len(),
-            f.name
-        );
+        progress.update(i as u64 + 1, || format!("{}: PSNR {p:.2} dB", f.name));
     }
-    eprintln!();
+    progress.finish();
     let n = ds.frames.len() as f64;
     Ok((total_psnr / n, ms / n))
 }

@@ -1,6 +1,6 @@
 //! `svraster train`, `svraster eval` and the training part of `svraster demo`.
 
-use std::io::{IsTerminal, Write as _};
+use std::io::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 use std::time::Instant;
@@ -14,7 +14,7 @@ use svraster::scene::{checkpoint, Scene};
 use svraster::train::config::TrainConfig;
 use svraster::train::trainer::Trainer;
 
-use super::progress::{fmt_duration, RateWindow};
+use super::progress::{fmt_duration, Progress, RateWindow};
 use super::render::load_model;
 use super::run_dir::{
     atomic_write, catch_signals, load_pair, lock_run, save_run, truncate_stats, INTERRUPTS,
@@ -242,7 +242,6 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
     INTERRUPTS.store(0, Ordering::SeqCst);
     let cfg = trainer.config().clone();
     let sched = trainer.schedule().clone();
-    let tty = std::io::stderr().is_terminal();
     let stats_path = run.join("stats.jsonl");
     let mut stats = std::fs::OpenOptions::new()
         .create(true)
@@ -251,13 +250,14 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
         .with_context(|| format!("cannot open {}", stats_path.display()))?;
     let t0 = Instant::now();
     let first = trainer.iter();
-    let mut last_print = Instant::now();
     let mut shown = None;
     let mut window = RateWindow::new(30.0);
     window.push(first, 0.0);
+    let mut progress = Progress::new("train", u64::from(cfg.iters));
+    progress.update(u64::from(first), || "starting".into());
     while trainer.iter() < cfg.iters {
         if INTERRUPTS.load(Ordering::SeqCst) > 0 {
-            eprintln!();
+            progress.finish();
             save_run(run, trainer)?;
             curves(run);
             eprintln!(
@@ -307,11 +307,7 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
                 r.device_memory as f64 / (1u64 << 20) as f64,
                 r.seconds
             );
-            if tty {
-                eprint!("\r{msg}\n");
-            } else {
-                eprintln!("{msg}");
-            }
+            progress.line(&msg);
         }
         if sched.checkpoints.contains(&info.iter) {
             trainer.check_finite()?;
@@ -320,30 +316,19 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
         }
         let done = info.iter == cfg.iters;
         window.push(info.iter, t0.elapsed().as_secs_f64());
-        if (tty && last_print.elapsed().as_secs_f64() > 0.5) || info.losses.is_some() || done {
+        progress.update(u64::from(info.iter), || {
             let rate = window.rate();
             let eta = (cfg.iters - info.iter) as f64 / rate;
             let (loss, p) = shown.map_or((f64::NAN, f64::NAN), |l| (l.loss, l.psnr));
-            let msg = format!(
-                "it {}/{} [{:>3.0}%] {rate:.2} it/s  loss {loss:.4}  PSNR {p:.2}  voxels {}  SH {}  ETA {}",
-                info.iter,
-                cfg.iters,
-                100.0 * info.iter as f64 / cfg.iters as f64,
+            format!(
+                "{rate:.2} it/s  loss {loss:.4}  PSNR {p:.2}  voxels {}  SH {}  ETA {}",
                 trainer.voxels(),
                 info.sh_degree,
-                fmt_duration(eta)
-            );
-            if tty {
-                eprint!("\r{msg}   ");
-            } else if info.losses.is_some() || done {
-                eprintln!("{msg}");
-            }
-            last_print = Instant::now();
-        }
+                fmt_duration(if done { 0.0 } else { eta })
+            )
+        });
     }
-    if tty {
-        eprintln!();
-    }
+    progress.finish();
     trainer.check_finite()?;
     save_run(run, trainer)?;
     curves(run);
@@ -376,14 +361,15 @@ pub fn evaluate(
     if ds.frames.is_empty() {
         bail!("split `{split}` of {} has no frames", data.display());
     }
-    let rep = svraster::eval::evaluate(ctx, scene, &ds, opts, |i, n, name, p, s| {
-        if !quiet {
-            eprint!("\r[{i}/{n}] {name}: PSNR {p:.2} SSIM {s:.4}     ");
-        }
+    let mut progress = if quiet {
+        Progress::hidden()
+    } else {
+        Progress::new(&format!("eval {split}"), ds.frames.len() as u64)
+    };
+    let rep = svraster::eval::evaluate(ctx, scene, &ds, opts, |i, _, name, p, s| {
+        progress.update(i as u64, || format!("{name}: PSNR {p:.2} SSIM {s:.4}"));
     })?;
-    if !quiet {
-        eprintln!();
-    }
+    progress.finish();
     Ok(rep)
 }
 
