@@ -6,7 +6,7 @@
 //! A shader error fails the build with glslang's `file:line: message`. Every shader and
 //! every include is registered with `cargo:rerun-if-changed`.
 
-use std::collections::HashMap;
+use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
@@ -30,6 +30,9 @@ fn main() {
          use crate::gpu::KernelSource;\n\n",
     );
     let mut all = Vec::new();
+    // Every buffer-reference block by name, with the first kernel that uses it; one name
+    // must have one layout in every kernel.
+    let mut blocks: BTreeMap<String, (Block, String)> = BTreeMap::new();
     // (kernel path below glsl/ without extension, GLSL source): every .comp file, then the
     // generated variants of the permutation table.
     let mut sources: Vec<(String, String)> = Vec::new();
@@ -96,6 +99,19 @@ fn main() {
                 let words = art.as_binary().to_vec();
                 let refl = reflect(&words)
                     .unwrap_or_else(|e| panic!("{display}: SPIR-V reflection failed: {e}"));
+                for b in &refl.blocks {
+                    match blocks.get(&b.name) {
+                        Some((prev, first)) if prev != b => panic!(
+                            "{display}: block {} differs from its layout in {first}: \
+                             {prev:?} vs {b:?}",
+                            b.name
+                        ),
+                        Some(_) => {}
+                        None => {
+                            blocks.insert(b.name.clone(), (b.clone(), display.clone()));
+                        }
+                    }
+                }
                 let ident = rel_str
                     .trim_end_matches(".comp")
                     .replace(['/', '-', '.'], "_")
@@ -139,6 +155,16 @@ fn main() {
             .join(", ")
     );
     std::fs::write(out_dir.join("kernels.rs"), module).unwrap();
+    std::fs::write(out_dir.join("layouts.rs"), layouts_module(&blocks)).unwrap();
+    let headers: Vec<&PathBuf> = files
+        .iter()
+        .filter(|p| p.starts_with(glsl.join("lib")) && p.extension().is_some_and(|e| e == "glsl"))
+        .collect();
+    std::fs::write(
+        out_dir.join("glsl_consts.rs"),
+        constants_module(&glsl, &headers),
+    )
+    .unwrap();
 }
 
 fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
@@ -158,128 +184,303 @@ fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
 struct Reflection {
     local_size: [u32; 3],
     push_size: u32,
+    /// Buffer-reference parameter blocks (structs of two or more members reached through
+    /// a PhysicalStorageBuffer pointer; the one-member `U32s`-style array wrappers left
+    /// out).
+    blocks: Vec<Block>,
 }
 
-/// Minimal SPIR-V reflection: the LocalSize execution mode and the byte size of the
+/// A block's std430 layout as glslang compiled it.
+#[derive(Clone, Debug, PartialEq)]
+struct Block {
+    name: String,
+    size: u32,
+    /// (member name, byte offset), in declaration order.
+    members: Vec<(String, u32)>,
+}
+
+/// Reflection with `rspirv`: the LocalSize execution mode, the byte size of the
 /// push-constant block (max over members of offset + size, following ArrayStride and
-/// nested structs; PhysicalStorageBuffer pointers are 8 bytes).
+/// nested structs; PhysicalStorageBuffer pointers are 8 bytes), and the layouts of the
+/// buffer-reference parameter blocks (named through the debug info).
 fn reflect(words: &[u32]) -> Result<Reflection, String> {
+    use rspirv::dr::Operand as O;
+    use rspirv::spirv::{Decoration, ExecutionMode, Op, StorageClass};
+
     #[derive(Clone)]
     enum Ty {
         Scalar(u32),
         Vector(u32, u32),
-        Matrix(u32, u32),
         Array(u32, u32),
         Struct(Vec<u32>),
-        Pointer(u32, u32),
+        Pointer(StorageClass, u32),
         Other,
     }
-    if words.len() < 5 || words[0] != 0x0723_0203 {
+    // The embedded source text (OpSource/OpSourceContinued/OpString) is split into
+    // instructions at byte boundaries that can cut a UTF-8 character, which rspirv
+    // rejects; reflection needs none of it.
+    if words.len() < 5 {
         return Err("not SPIR-V".into());
     }
-    let mut types: HashMap<u32, Ty> = HashMap::new();
-    let mut constants: HashMap<u32, u32> = HashMap::new();
-    let mut member_offsets: HashMap<(u32, u32), u32> = HashMap::new();
-    let mut array_stride: HashMap<u32, u32> = HashMap::new();
-    let mut local_size = None;
-    let mut push_var_type = None;
+    let mut kept = words[..5].to_vec();
     let mut i = 5;
     while i < words.len() {
         let wc = (words[i] >> 16) as usize;
-        let op = words[i] & 0xffff;
         if wc == 0 || i + wc > words.len() {
             return Err("truncated instruction".into());
         }
-        let a = &words[i + 1..i + wc];
-        match op {
-            16 if a.len() >= 5 && a[1] == 17 => local_size = Some([a[2], a[3], a[4]]),
-            71 if a.len() >= 3 && a[1] == 6 => {
-                array_stride.insert(a[0], a[2]);
-            }
-            72 if a.len() >= 4 && a[2] == 35 => {
-                member_offsets.insert((a[0], a[1]), a[3]);
-            }
-            21 => {
-                types.insert(a[0], Ty::Scalar(a[1] / 8));
-            }
-            22 => {
-                types.insert(a[0], Ty::Scalar(a[1] / 8));
-            }
-            20 => {
-                types.insert(a[0], Ty::Scalar(4));
-            }
-            23 => {
-                types.insert(a[0], Ty::Vector(a[1], a[2]));
-            }
-            24 => {
-                types.insert(a[0], Ty::Matrix(a[1], a[2]));
-            }
-            28 => {
-                types.insert(a[0], Ty::Array(a[1], a[2]));
-            }
-            30 => {
-                types.insert(a[0], Ty::Struct(a[1..].to_vec()));
-            }
-            32 => {
-                types.insert(a[0], Ty::Pointer(a[1], a[2]));
-            }
-            43 => {
-                constants.insert(a[1], a[2]);
-            }
-            59 if a.len() >= 3 && a[2] == 9 => push_var_type = Some(a[0]),
-            _ => {
-                if matches!(op, 19 | 29 | 31 | 33) && !a.is_empty() {
-                    types.entry(a[0]).or_insert(Ty::Other);
-                }
-            }
+        let op = words[i] & 0xffff;
+        let source_text = [Op::Source, Op::SourceContinued, Op::String];
+        if !source_text.iter().any(|o| *o as u32 == op) {
+            kept.extend_from_slice(&words[i..i + wc]);
         }
         i += wc;
     }
-    fn size_of(
-        id: u32,
-        types: &HashMap<u32, Ty>,
-        consts: &HashMap<u32, u32>,
-        offs: &HashMap<(u32, u32), u32>,
-        strides: &HashMap<u32, u32>,
-    ) -> Result<u32, String> {
-        match types.get(&id).ok_or("unknown type id")? {
-            Ty::Scalar(b) => Ok(*b),
-            Ty::Vector(c, n) => Ok(size_of(*c, types, consts, offs, strides)? * n),
-            Ty::Matrix(c, n) => Ok(size_of(*c, types, consts, offs, strides)? * n),
-            Ty::Array(e, len) => {
-                let n = *consts.get(len).ok_or("array length is not a constant")?;
-                let stride = match strides.get(&id) {
-                    Some(s) => *s,
-                    None => size_of(*e, types, consts, offs, strides)?,
-                };
-                Ok(stride * n)
-            }
-            Ty::Struct(members) => {
-                let mut end = 0;
-                for (m, t) in members.iter().enumerate() {
-                    let off = *offs.get(&(id, m as u32)).ok_or("member without Offset")?;
-                    end = end.max(off + size_of(*t, types, consts, offs, strides)?);
-                }
-                Ok(end)
-            }
-            // PhysicalStorageBuffer pointer (buffer_reference): 64-bit address.
-            Ty::Pointer(5349, _) => Ok(8),
-            Ty::Pointer(..) | Ty::Other => Err("unsupported type in push constants".into()),
+    let m = rspirv::dr::load_words(&kept).map_err(|e| e.to_string())?;
+    let mut local_size = None;
+    for i in &m.execution_modes {
+        if let [_, O::ExecutionMode(ExecutionMode::LocalSize), O::LiteralBit32(x), O::LiteralBit32(y), O::LiteralBit32(z)] =
+            i.operands.as_slice()
+        {
+            local_size = Some([*x, *y, *z]);
         }
     }
+    let mut names: HashMap<u32, String> = HashMap::new();
+    let mut member_names: HashMap<(u32, u32), String> = HashMap::new();
+    for i in &m.debug_names {
+        match (i.class.opcode, i.operands.as_slice()) {
+            (Op::Name, [O::IdRef(id), O::LiteralString(s)]) => {
+                names.insert(*id, s.clone());
+            }
+            (Op::MemberName, [O::IdRef(id), O::LiteralBit32(k), O::LiteralString(s)]) => {
+                member_names.insert((*id, *k), s.clone());
+            }
+            _ => {}
+        }
+    }
+    let mut offsets: HashMap<(u32, u32), u32> = HashMap::new();
+    let mut strides: HashMap<u32, u32> = HashMap::new();
+    for i in &m.annotations {
+        match (i.class.opcode, i.operands.as_slice()) {
+            (
+                Op::MemberDecorate,
+                [O::IdRef(t), O::LiteralBit32(k), O::Decoration(Decoration::Offset), O::LiteralBit32(off)],
+            ) => {
+                offsets.insert((*t, *k), *off);
+            }
+            (
+                Op::Decorate,
+                [O::IdRef(t), O::Decoration(Decoration::ArrayStride), O::LiteralBit32(st)],
+            ) => {
+                strides.insert(*t, *st);
+            }
+            _ => {}
+        }
+    }
+    let mut types: HashMap<u32, Ty> = HashMap::new();
+    let mut constants: HashMap<u32, u32> = HashMap::new();
+    let mut push_var_type = None;
+    for i in &m.types_global_values {
+        let Some(id) = i.result_id else { continue };
+        let ops = i.operands.as_slice();
+        let ty = match (i.class.opcode, ops) {
+            (Op::TypeInt | Op::TypeFloat, [O::LiteralBit32(w), ..]) => Ty::Scalar(w / 8),
+            (Op::TypeBool, _) => Ty::Scalar(4),
+            (Op::TypeVector | Op::TypeMatrix, [O::IdRef(c), O::LiteralBit32(n)]) => {
+                Ty::Vector(*c, *n)
+            }
+            (Op::TypeArray, [O::IdRef(e), O::IdRef(len)]) => Ty::Array(*e, *len),
+            (Op::TypeStruct, _) => Ty::Struct(
+                ops.iter()
+                    .filter_map(|o| if let O::IdRef(t) = o { Some(*t) } else { None })
+                    .collect(),
+            ),
+            (Op::TypePointer, [O::StorageClass(sc), O::IdRef(t)]) => Ty::Pointer(*sc, *t),
+            (Op::Constant, [O::LiteralBit32(v)]) => {
+                constants.insert(id, *v);
+                continue;
+            }
+            (Op::Variable, [O::StorageClass(StorageClass::PushConstant), ..]) => {
+                push_var_type = i.result_type;
+                continue;
+            }
+            (op, _) if format!("{op:?}").starts_with("Type") => Ty::Other,
+            _ => continue,
+        };
+        types.insert(id, ty);
+    }
+    let size_of = |id: u32| -> Result<u32, String> {
+        fn go(
+            id: u32,
+            types: &HashMap<u32, Ty>,
+            consts: &HashMap<u32, u32>,
+            offs: &HashMap<(u32, u32), u32>,
+            strides: &HashMap<u32, u32>,
+        ) -> Result<u32, String> {
+            match types.get(&id).ok_or("unknown type id")? {
+                Ty::Scalar(b) => Ok(*b),
+                Ty::Vector(c, n) => Ok(go(*c, types, consts, offs, strides)? * n),
+                Ty::Array(e, len) => {
+                    let n = *consts.get(len).ok_or("array length is not a constant")?;
+                    let stride = match strides.get(&id) {
+                        Some(s) => *s,
+                        None => go(*e, types, consts, offs, strides)?,
+                    };
+                    Ok(stride * n)
+                }
+                Ty::Struct(members) => {
+                    let mut end = 0;
+                    for (m, t) in members.iter().enumerate() {
+                        let off = *offs.get(&(id, m as u32)).ok_or("member without Offset")?;
+                        end = end.max(off + go(*t, types, consts, offs, strides)?);
+                    }
+                    Ok(end)
+                }
+                // buffer_reference: a 64-bit device address.
+                Ty::Pointer(StorageClass::PhysicalStorageBuffer, _) => Ok(8),
+                Ty::Pointer(..) | Ty::Other => Err("unsupported type in a block".into()),
+            }
+        }
+        go(id, &types, &constants, &offsets, &strides)
+    };
     let push_size = match push_var_type {
         None => 0,
         Some(ptr) => match types.get(&ptr) {
-            Some(Ty::Pointer(9, pointee)) => {
-                size_of(*pointee, &types, &constants, &member_offsets, &array_stride)?
-            }
+            Some(Ty::Pointer(StorageClass::PushConstant, pointee)) => size_of(*pointee)?,
             _ => return Err("push-constant variable is not a pointer".into()),
         },
     };
+    let mut blocks = Vec::new();
+    let mut seen = std::collections::HashSet::new();
+    for t in types.values() {
+        let Ty::Pointer(StorageClass::PhysicalStorageBuffer, s) = t else {
+            continue;
+        };
+        let Some(Ty::Struct(members)) = types.get(s) else {
+            continue;
+        };
+        if members.len() < 2 || !seen.insert(*s) {
+            continue;
+        }
+        let name = names
+            .get(s)
+            .ok_or("a buffer-reference block without a name")?;
+        let members = (0..members.len() as u32)
+            .map(|k| {
+                let n = member_names
+                    .get(&(*s, k))
+                    .ok_or_else(|| format!("{name}: member {k} without a name"))?;
+                let o = offsets
+                    .get(&(*s, k))
+                    .ok_or_else(|| format!("{name}.{n}: no Offset"))?;
+                Ok((n.clone(), *o))
+            })
+            .collect::<Result<Vec<_>, String>>()?;
+        blocks.push(Block {
+            name: name.clone(),
+            size: size_of(*s)?,
+            members,
+        });
+    }
     Ok(Reflection {
         local_size: local_size.ok_or("no LocalSize execution mode (use literal local_size_x)")?,
         push_size,
+        blocks,
     })
+}
+
+/// `layouts.rs`: the macro `gpu_layout!(Block, RustType)`, which asserts at compile time
+/// that a `#[repr(C)]` Rust mirror has the GLSL block's size and every member of the
+/// block as a field of the same name at the same offset.
+fn layouts_module(blocks: &BTreeMap<String, (Block, String)>) -> String {
+    let mut s = String::from(
+        "// @generated by build.rs from the SPIR-V of glsl/**/*.comp — do not edit.\n\n\
+         /// Asserts at compile time that the `#[repr(C)]` Rust mirror `$t` of the GLSL\n\
+         /// buffer-reference block `$block` has its size and, for every member, a field of the\n\
+         /// same name at the same offset (reflected from the compiled SPIR-V).\n\
+         macro_rules! gpu_layout {\n",
+    );
+    for (name, (b, first)) in blocks {
+        let _ = writeln!(s, "    ({name}, $t:ty) => {{\n        const _: () = {{");
+        let _ = writeln!(
+            s,
+            "            assert!(::std::mem::size_of::<$t>() == {size}, \"{name} (as compiled in {first}): \
+             the Rust mirror's size differs from the GLSL block's {size} bytes\");",
+            size = b.size
+        );
+        for (m, off) in &b.members {
+            let _ = writeln!(
+                s,
+                "            assert!(::std::mem::offset_of!($t, {m}) == {off}, \"{name}.{m}: the Rust \
+                 mirror's offset differs from the GLSL block's {off}\");"
+            );
+        }
+        let _ = writeln!(s, "        }};\n    }};");
+    }
+    s.push_str("}\n");
+    s
+}
+
+/// `glsl_consts.rs`: every integer constant of the shared headers (`glsl/lib/*.glsl`:
+/// top-level `const uint NAME = 3u[, NAME2 = 4u …];` and `#define NAME 3u`) as a Rust
+/// `pub const NAME: u32`, so stat slots, flags, channel indices and strides are written
+/// once, in GLSL. A name defined twice with different values fails the build.
+fn constants_module(glsl: &Path, headers: &[&PathBuf]) -> String {
+    let mut consts: BTreeMap<String, (u32, String)> = BTreeMap::new();
+    let int = |v: &str| -> Option<u32> {
+        let v = v.trim().trim_end_matches(['u', 'U']);
+        match v.strip_prefix("0x") {
+            Some(h) => u32::from_str_radix(h, 16).ok(),
+            None => v.parse().ok(),
+        }
+    };
+    for path in headers {
+        let rel = path.strip_prefix(glsl).unwrap().display().to_string();
+        let text = std::fs::read_to_string(path).expect("read header");
+        let mut found = Vec::new();
+        let mut rest = text.as_str();
+        while let Some(at) = rest.find("\nconst uint ") {
+            let decl = &rest[at + "\nconst uint ".len()..];
+            let end = decl.find(';').unwrap_or(decl.len());
+            // Drop `// …` comments inside a multi-line declaration.
+            let body: String = decl[..end]
+                .lines()
+                .map(|l| l.split("//").next().unwrap_or(""))
+                .collect::<Vec<_>>()
+                .join(" ");
+            for item in body.split(',') {
+                if let Some((n, v)) = item.split_once('=') {
+                    if let Some(v) = int(v) {
+                        found.push((n.trim().to_string(), v));
+                    }
+                }
+            }
+            rest = &decl[end..];
+        }
+        for line in text.lines() {
+            let mut w = line.split_whitespace();
+            if let (Some("#define"), Some(n), Some(v)) = (w.next(), w.next(), w.next()) {
+                if let Some(v) = int(v) {
+                    found.push((n.to_string(), v));
+                }
+            }
+        }
+        for (n, v) in found {
+            if let Some((old, file)) = consts.get(&n) {
+                assert!(
+                    *old == v,
+                    "glsl/{rel}: {n} = {v}, but glsl/{file} defines it as {old}"
+                );
+            } else {
+                consts.insert(n, (v, rel.clone()));
+            }
+        }
+    }
+    let mut s = String::from("// @generated by build.rs from glsl/lib/*.glsl — do not edit.\n");
+    for (n, (v, file)) in &consts {
+        let _ = writeln!(s, "/// `{n}` in glsl/{file}.\npub const {n}: u32 = {v};");
+    }
+    s
 }
 
 /// The permutation table: kernels compiled from one body in `glsl/lib/` with `#define`s

@@ -10,6 +10,7 @@ pub mod data;
 pub mod error;
 pub mod eval;
 pub mod fsio;
+#[macro_use]
 pub mod gpu;
 pub mod raster;
 pub mod scan;

@@ -25,7 +25,8 @@ mod common;
 use common::reference::{self, alpha_of, pixel_ray, EARLY_STOP_T, MIN_ALPHA};
 use common::{camera_inside, camera_outside, context, finish, random_scene, Rng};
 use svraster::data::Camera;
-use svraster::raster::{Image, RenderOptions, Renderer, SceneGpu};
+use svraster::raster::{Image, RenderOptions, Renderer};
+use svraster::scene::SceneGpu;
 use svraster::scene::{octpath_from_ijk, Scene};
 use svraster::train::adapt_stats::{StatsPass, VoxelStats};
 

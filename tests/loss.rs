@@ -6,7 +6,8 @@ mod common;
 
 use common::reference_grad::{evaluate, pixel_rays, LossSpec, Params, PixelWeights, TERM_DIST};
 use common::{camera_outside, context, finish, random_scene, Rng};
-use svraster::raster::{RenderOptions, Renderer, SceneGpu, CHANNELS};
+use svraster::raster::{RenderOptions, Renderer, CHANNELS};
+use svraster::scene::SceneGpu;
 use svraster::train::backward::{dout, Backward};
 use svraster::train::loss::PixelLoss;
 

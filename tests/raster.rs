@@ -9,7 +9,8 @@ mod common;
 use common::reference::{self, RefPixel};
 use common::{camera_inside, camera_outside, context, finish, random_scene, scattered_scene, Rng};
 use svraster::data::Camera;
-use svraster::raster::{Image, RenderOptions, Renderer, SceneGpu};
+use svraster::raster::{Image, RenderOptions, Renderer};
+use svraster::scene::SceneGpu;
 use svraster::scene::{octpath_from_ijk, Scene};
 
 const RGB_TOL: f64 = 1e-3;

@@ -20,7 +20,8 @@ use common::reference::trilinear;
 use common::{camera_inside, camera_outside, context, finish, random_scene, Rng};
 use svraster::data::Camera;
 use svraster::gpu::Context;
-use svraster::raster::{Image, RenderOptions, Renderer, SceneGpu};
+use svraster::raster::{Image, RenderOptions, Renderer};
+use svraster::scene::SceneGpu;
 use svraster::scene::{key_coords, octpath_from_ijk, voxel_corner_keys, Scene, MAX_LEVEL};
 use svraster::train::topology::{Moments, Topology};
 

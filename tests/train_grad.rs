@@ -10,8 +10,9 @@ use common::reference_grad::{
 use common::{camera_inside, camera_outside, context, finish, random_scene, scattered_scene, Rng};
 use svraster::data::Camera;
 use svraster::gpu::Context;
-use svraster::raster::{RenderOptions, Renderer, SceneGpu};
+use svraster::raster::{RenderOptions, Renderer};
 use svraster::scene::Scene;
+use svraster::scene::SceneGpu;
 use svraster::train::backward::{dout, Backward, EntryLosses, Gradients};
 
 pub struct GpuGrads {

@@ -20,10 +20,10 @@ layout(push_constant) uniform Push {
 void main() {
     FrameParams P = pc.P;
     uint v = linear_group_id() * 256u + gl_LocalInvocationID.x;
-    if (v >= min(pc.count, P.cfg.x)) return;
+    if (v >= min(pc.count, P.voxels)) return;
     if (P.counts.v[v] == 0u) return;  // cs is only written for visible voxels
     vec3 c = vec3(P.cs.v[4u * v], P.cs.v[4u * v + 1u], P.cs.v[4u * v + 2u]);
     float z = dot(P.w2c[2].xyz, c);
-    float interval = max(z, P.bg.w) / P.intr.x;
+    float interval = max(z, P.near) / P.intr.x;
     if (interval < pc.minint.v[v]) pc.minint.v[v] = interval;
 }

@@ -92,10 +92,10 @@ void main() {
     FrameParams P = pc.P;
     BackParams B = pc.B;
     uint l = gl_LocalInvocationID.x;
-    uint tiles_x = P.dims.z;
+    uint tiles_x = P.tiles.x;
     uint tile = gl_WorkGroupID.y * tiles_x + gl_WorkGroupID.x;
     uvec2 pix = gl_WorkGroupID.xy * 16u + tile_pixel(l);
-    uint W = P.dims.x, H = P.dims.y;
+    uint W = P.render_size.x, H = P.render_size.y;
     bool inside = pix.x < W && pix.y < H;
     uint npix = W * H;
     uint p = inside ? pix.y * W + pix.x : 0u;
@@ -105,7 +105,7 @@ void main() {
     pixel_ray(P, pix, rd, rd_norm);
     vec3 inv_rd = 1.0 / rd;
     uint sign = ray_sign_bits(rd);
-    float t_near = P.bg.w * rd_norm;
+    float t_near = P.near * rd_norm;
 
     // Loss gradients of this pixel (render resolution).
     vec3 dC = vec3(0.0), dN = vec3(0.0), gt = vec3(0.0);
@@ -121,7 +121,7 @@ void main() {
         mtot = P.aux.v[AUX_M * npix + p];
         last = P.last.v[p];
         t_last = P.aux.v[AUX_TLAST * npix + p];
-        if (pc.chunk + 1u == B.cfg.x) {
+        if (pc.chunk + 1u == B.chunks) {
             T = P.aux.v[AUX_T * npix + p];
             A = B.dimg.v[DI_T * npix + p];
         } else {
@@ -131,9 +131,9 @@ void main() {
             ma = B.bstate.v[BS_MA * npix + p];
         }
     }
-    float lam_dist = B.w.x, lam_r = B.w.y;
+    float lam_dist = B.lambda_dist, lam_r = B.lambda_r;
 
-    uint chunk_size = B.cfg.y;
+    uint chunk_size = B.chunk_size;
     uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
     uint start = r0 + min(r1 - r0, pc.chunk * chunk_size);
     uint end = min(r1, start + chunk_size);

@@ -1,14 +1,19 @@
 // Parameters of the training backward (not readonly: its references are passed to
-// atomic_add_f32), mirrored by `train::backward::BackParams` in
-// Rust: keep the two in sync.
+// atomic_add_f32), mirrored by `train::backward::BackParams` in Rust,
+// checked member by member at build time (`gpu_layout!`).
 #ifndef BACKWARD_PARAMS_GLSL
 #define BACKWARD_PARAMS_GLSL
 #include "common.glsl"
 
 layout(buffer_reference, std430, buffer_reference_align = 16) buffer BackParams {
-    vec4 w;       // λ_dist, λ_R (per pixel, already divided by the pixel count), pad, pad
-    uvec4 cfg;    // chunks recorded, chunk size, voxels, pad
-    uvec4 dims;   // out width, out height, render width, render height
+    float lambda_dist;  // distortion-loss weight, per pixel (divided by the pixel count)
+    float lambda_r;     // per-pixel weight of the second loss term (divided likewise)
+    uint chunks;        // chunks recorded
+    uint chunk_size;    // entries per chunk
+    uint voxels;
+    uint pad0;
+    uvec2 out_size;     // width, height of the output image
+    uvec2 render_size;  // width, height of the rendered image
     F32s dimg;    // per render pixel, planar DI_CHANNELS: loss gradients and ground truth
     F32s dout;    // per output pixel, planar DO_CHANNELS: gradients w.r.t. the outputs + gt
     F32s bstate;  // per render pixel, planar BS_CHANNELS: backward state between chunks

@@ -31,10 +31,10 @@ shared uint s_live;
 void main() {
     FrameParams P = pc.P;
     uint l = gl_LocalInvocationID.x;
-    uint tiles_x = P.dims.z;
+    uint tiles_x = P.tiles.x;
     uint tile = gl_WorkGroupID.y * tiles_x + gl_WorkGroupID.x;
     uvec2 pix = gl_WorkGroupID.xy * 16u + tile_pixel(l);
-    uint W = P.dims.x, H = P.dims.y;
+    uint W = P.render_size.x, H = P.render_size.y;
     bool inside = pix.x < W && pix.y < H;
     uint npix = W * H;
     uint p = pix.y * W + pix.x;
@@ -44,7 +44,7 @@ void main() {
     pixel_ray(P, pix, rd, rd_norm);
     vec3 inv_rd = 1.0 / rd;
     uint sign = ray_sign_bits(rd);
-    float t_near = P.bg.w * rd_norm;
+    float t_near = P.near * rd_norm;
 
     vec3 C = vec3(0.0), N = vec3(0.0);
     float T = 1.0, D = 0.0, med_t = 0.0;
@@ -72,7 +72,7 @@ void main() {
     // inflate the transmittance of those behind). A frame short of chunks composites
     // an exact prefix of every list, so its weights are the complete frame's.
 #ifdef TRACK_MAXW
-    bool track_maxw = U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u] <= uint64_t(P.cfg.w);
+    bool track_maxw = U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u] <= uint64_t(P.entry_capacity);
 #endif
 #ifdef COUNTERS
     // Per invocation (a dispatch stays far below 2^32 of each).
@@ -83,13 +83,13 @@ void main() {
     uvec2 org = gl_WorkGroupID.xy * 16u;
     walk_setup(l, tile_pixel(l), sign, inside);
 
-    uint chunk_size = P.cfg2.y;
+    uint chunk_size = P.chunk_size;
     uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
     uint start = r0 + min(r1 - r0, pc.chunk * chunk_size);
     uint end = min(r1, start + chunk_size);
     if (l == 0u) {
         if (pc.chunk == 0u) atomicMax(P.stats.v[STAT_MAX_TILE], r1 - r0);
-        if (pc.chunk + 1u == P.cfg2.x && end < r1) atomicOr(P.stats.v[STAT_FLAGS], FLAG_NEED_CHUNKS);
+        if (pc.chunk + 1u == P.chunks && end < r1) atomicOr(P.stats.v[STAT_FLAGS], FLAG_NEED_CHUNKS);
     }
     uint n = end - start;
 

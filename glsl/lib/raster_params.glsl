@@ -1,6 +1,7 @@
 // Per-frame parameters of the rasterizer, written into the command buffer with
 // vkCmdUpdateBuffer (so a recorded frame is self-contained) and read through a device
-// address. Mirrored by `raster::FrameParams` in Rust: keep the two in sync.
+// address. Mirrored by `raster::FrameParams` in Rust; build.rs reflects this block from the
+// SPIR-V and `gpu_layout!` fails the build when a member name or offset differs.
 // All geometry is camera-relative: the camera sits at the origin of world axes.
 // Voxel corners relative to the camera are computed from integer grid coordinates
 // minus the camera's integer grid position (exact), minus its fractional part, times the
@@ -11,17 +12,30 @@
 #include "common.glsl"
 
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer FrameParams {
-    vec4 w2c[3];      // rows of the world-to-camera rotation (xyz)
-    vec4 c2w[3];      // rows of the camera-to-world rotation (xyz)
-    vec4 intr;        // fx, fy, cx, cy (render resolution)
-    vec4 cam_frac;    // camera position in finest-grid units: fractional part (xyz); unit length (w)
-    vec4 bg;          // background rgb, near plane
-    uvec4 dims;       // width, height, tiles_x, tiles_y (render resolution)
-    uvec4 cfg;        // voxels, sh_degree, max_level, entry capacity
-    uvec4 cfg2;       // chunks recorded, chunk size, key shift (3 * max_level), out width
-    uvec4 cfg3;       // out height, supersampled (0/1), SH coefficients stored per voxel (shs), pad
-    vec4 ss;          // render/out scale x, y, filter radius x, y (downsample)
-    ivec4 cam_int;    // camera position in finest-grid units: integer part (xyz)
+    vec4 w2c[3];        // rows of the world-to-camera rotation (xyz)
+    vec4 c2w[3];        // rows of the camera-to-world rotation (xyz)
+    vec4 intr;          // fx, fy, cx, cy (render resolution)
+    vec3 cam_frac;      // camera position in finest-grid units: fractional part
+    float unit;         // finest-grid unit length (world units)
+    vec3 bg;            // background rgb
+    float near;         // near plane (camera depth)
+    uvec2 render_size;  // width, height of the rendered (possibly supersampled) image
+    uvec2 tiles;        // tiles along x, y
+    uint voxels;
+    uint sh_degree;
+    uint max_level;
+    uint entry_capacity;  // entries the key buffers hold
+    uint chunks;          // chunks recorded
+    uint chunk_size;      // entries per chunk
+    uint key_shift;       // 3 * max_level: bits of the Morton part of a sort key
+    uint supersampled;    // 0/1: render_size differs from out_size (downsample pass)
+    uvec2 out_size;       // width, height of the output image
+    uint shs_stride;      // SH coefficients stored per voxel (rgb triples)
+    uint pad0;
+    vec2 ss_scale;        // render / out size, x and y
+    vec2 filter_radius;   // downsample filter radius, x and y (output pixels)
+    ivec3 cam_int;        // camera position in finest-grid units: integer part
+    int pad1;
     // scene
     U64s octpath; U32s level; U32s corners; F32s geo; F32s sh0; F32s shs;
     // per voxel (frame)
@@ -96,6 +110,6 @@ uvec2 tile_pixel(uint l) {
 
 // Camera-relative world position of integer finest-grid coordinates.
 vec3 grid_to_camera(FrameParams P, uvec3 fine) {
-    return (vec3(ivec3(fine) - P.cam_int.xyz) - P.cam_frac.xyz) * P.cam_frac.w;
+    return (vec3(ivec3(fine) - P.cam_int) - P.cam_frac) * P.unit;
 }
 #endif

@@ -19,9 +19,9 @@ void main() {
     FrameParams P = pc.P;
     BackParams B = pc.B;
     uint v = linear_group_id() * 256u + gl_LocalInvocationID.x;
-    if (v >= P.cfg.x) return;
-    uint stride = P.cfg3.z;
-    uint degree = P.cfg.y;
+    if (v >= P.voxels) return;
+    uint stride = P.shs_stride;
+    uint degree = P.sh_degree;
     uint nc = (degree + 1u) * (degree + 1u) - 1u;
     if (P.counts.v[v] == 0u) {
         for (uint c = 0u; c < 3u; ++c) B.grad_sh0.v[3u * v + c] = 0.0;

@@ -13,13 +13,13 @@ layout(push_constant) uniform Push {
 void main() {
     FrameParams P = pc.P;
     uint q = linear_group_id() * 256u + gl_LocalInvocationID.x;
-    uint OW = P.cfg2.w, OH = P.cfg3.x;
+    uint OW = P.out_size.x, OH = P.out_size.y;
     if (q >= OW * OH) return;
-    uint W = P.dims.x, H = P.dims.y;
+    uint W = P.render_size.x, H = P.render_size.y;
     uint npix = W * H, nout = OW * OH;
     vec2 o = vec2(q % OW, q / OW);
-    vec2 scale = P.ss.xy;   // render pixels per output pixel
-    vec2 rad = P.ss.zw;     // filter radius in render pixels (max(scale, 1))
+    vec2 scale = P.ss_scale;   // render pixels per output pixel
+    vec2 rad = P.filter_radius;     // filter radius in render pixels (max(scale, 1))
     vec2 centre = (o + 0.5) * scale;  // in render-pixel coordinates
     ivec2 lo = max(ivec2(floor(centre - rad)), ivec2(0));
     ivec2 hi = min(ivec2(ceil(centre + rad)), ivec2(W, H) - 1);

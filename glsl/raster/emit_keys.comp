@@ -19,7 +19,7 @@ void main() {
     if (i >= P.stats.v[STAT_USED]) return;
 
     // Last voxel whose offset is <= i (it has a non-zero count).
-    uint lo = 0u, hi = P.cfg.x;  // invariant: offsets[lo] <= i < offsets[hi] (hi = n: inf)
+    uint lo = 0u, hi = P.voxels;  // invariant: offsets[lo] <= i < offsets[hi] (hi = n: inf)
     while (hi - lo > 1u) {
         uint mid = (lo + hi) >> 1u;
         if (P.offsets.v[mid] <= i) lo = mid; else hi = mid;
@@ -39,8 +39,8 @@ void main() {
     for (uint k = 0u; k < si; ++k) signs &= signs - 1u;
     uint sign = uint(findLSB(signs));
 
-    uint tile = (tlo.y + tr / tw) * P.dims.z + tlo.x + tr % tw;
-    uint shift = P.cfg2.z;
+    uint tile = (tlo.y + tr / tw) * P.tiles.x + tlo.x + tr % tw;
+    uint shift = P.key_shift;
     uint64_t order = dir_morton_order(P.octpath.v[v], sign) >> (48u - shift);
     P.keys.v[i] = (uint64_t(tile) << shift) | order;
     P.vals.v[i] = (sign << 29u) | v;

@@ -15,7 +15,7 @@ layout(push_constant) uniform Push {
 void main() {
     FrameParams P = pc.P;
     uint p = linear_group_id() * 256u + gl_LocalInvocationID.x;
-    uint W = P.dims.x, H = P.dims.y;
+    uint W = P.render_size.x, H = P.render_size.y;
     uint npix = W * H;
     if (p >= npix) return;
     uvec2 pix = uvec2(p % W, p / W);
@@ -39,7 +39,7 @@ void main() {
         for (uint c = 0u; c < 8u; ++c) g[c] = P.geo8.v[8u * v + c];
         float h = 0.5 * cs.w;
         vec2 ab = ray_aabb(cs.xyz - h, cs.xyz + h, rd, 1.0 / rd);
-        float a = max(ab.x, P.bg.w * rd_norm), b = ab.y;
+        float a = max(ab.x, P.near * rd_norm), b = ab.y;
         float step_sz = (b - a) * (1.0 / float(n_samp));
         vec3 vmin = cs.xyz - h;
         dmed = a - 0.5 * step_sz;

@@ -15,7 +15,7 @@ layout(push_constant) uniform Push {
 void main() {
     FrameParams P = pc.P;
     uint64_t total = U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u];
-    uint cap = P.cfg.w;
+    uint cap = P.entry_capacity;
     uint used = uint(min(total, uint64_t(cap)));
     if (total > uint64_t(cap)) P.stats.v[STAT_FLAGS] |= FLAG_ENTRY_OVERFLOW;
     P.stats.v[STAT_USED] = used;

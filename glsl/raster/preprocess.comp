@@ -23,17 +23,17 @@ void project(FrameParams P, vec3 c, inout vec2 lo, inout vec2 hi) {
 void main() {
     FrameParams P = pc.P;
     uint v = linear_group_id() * 256u + gl_LocalInvocationID.x;
-    uint n = P.cfg.x;
+    uint n = P.voxels;
     if (v >= n) return;
 
     uint level = P.level.v[v];
     uvec3 ijk = octpath_ijk(P.octpath.v[v], level);
     uint shift = MAX_LEVEL - level;
-    float size = P.cam_frac.w * float(1u << shift);
+    float size = P.unit * float(1u << shift);
     vec3 vmin = grid_to_camera(P, ijk << shift);  // camera-relative
     vec3 vmax = vmin + size;
     vec3 centre = vmin + 0.5 * size;
-    float near = P.bg.w;
+    float near = P.near;
 
     // Camera-space corners.
     vec3 cc[8];
@@ -74,7 +74,7 @@ void main() {
         }
         // Pixel i is hit through u = i + 0.5: i in [ceil(lo - 0.5), floor(hi - 0.5)],
         // widened by a small epsilon against rounding (exact tests happen per pixel).
-        float W = float(P.dims.x), H = float(P.dims.y);
+        float W = float(P.render_size.x), H = float(P.render_size.y);
         vec2 flo = clamp(ceil(lo - 0.5 - 0.01), vec2(0.0), vec2(W, H));
         vec2 fhi = clamp(floor(hi - 0.5 + 0.01), vec2(-1.0), vec2(W - 1.0, H - 1.0));
         if (flo.x <= fhi.x && flo.y <= fhi.y) {
@@ -117,12 +117,12 @@ void main() {
     vec3 nrm = grad * inversesqrt(max(dot(grad, grad), 1e-30));
 
     // Colour from the direction camera -> voxel centre.
-    uint degree = P.cfg.y;
+    uint degree = P.sh_degree;
     float y[16];
     sh_basis(normalize(centre), degree, y);
     vec3 rgb = y[0] * vec3(P.sh0.v[3u * v], P.sh0.v[3u * v + 1u], P.sh0.v[3u * v + 2u]);
     uint nc = (degree + 1u) * (degree + 1u) - 1u;  // active (degree may be raised during training)
-    uint stride = P.cfg3.z;                        // stored per voxel
+    uint stride = P.shs_stride;                        // stored per voxel
     for (uint k = 1u; k <= nc; ++k) {
         uint base = (v * stride + (k - 1u)) * 3u;
         rgb += y[k] * vec3(P.shs.v[base], P.shs.v[base + 1u], P.shs.v[base + 2u]);

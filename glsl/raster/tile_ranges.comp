@@ -13,7 +13,7 @@ void main() {
     uint i = linear_group_id() * 256u + gl_LocalInvocationID.x;
     uint n = P.stats.v[STAT_USED];
     if (i >= n) return;
-    uint shift = P.cfg2.z;
+    uint shift = P.key_shift;
     uint tile = uint(P.skeys.v[i] >> shift);
     if (i == 0u || uint(P.skeys.v[i - 1u] >> shift) != tile) P.ranges.v[2u * tile] = i;
     if (i + 1u == n || uint(P.skeys.v[i + 1u] >> shift) != tile) P.ranges.v[2u * tile + 1u] = i + 1u;

@@ -28,21 +28,21 @@ void main() {
     FrameParams P = pc.P;
     BackParams B = pc.B;
     uint p = linear_group_id() * 256u + gl_LocalInvocationID.x;
-    uint W = P.dims.x, H = P.dims.y;
+    uint W = P.render_size.x, H = P.render_size.y;
     if (p >= W * H) return;
     uint npix = W * H;
-    uint OW = B.dims.x, OH = B.dims.y;
+    uint OW = B.out_size.x, OH = B.out_size.y;
     uint nout = OW * OH;
     uvec2 pix = uvec2(p % W, p / W);
 
     float acc[8];
     for (uint c = 0u; c < 8u; ++c) acc[c] = 0.0;
     uint qgt;
-    if (P.cfg3.y == 0u) {
+    if (P.supersampled == 0u) {
         for (uint c = 0u; c < 8u; ++c) acc[c] = B.dout.v[c * nout + p];
         qgt = p;
     } else {
-        vec2 scale = P.ss.xy, rad = P.ss.zw;
+        vec2 scale = P.ss_scale, rad = P.filter_radius;
         vec2 x = vec2(pix) + 0.5;
         // Output pixels whose footprint |x - (o + 0.5)·scale| < rad contains this pixel.
         ivec2 olo = max(ivec2(floor((x - rad) / scale - 0.5)), ivec2(0));
@@ -66,7 +66,7 @@ void main() {
     B.dimg.v[DI_R * npix + p] = drgb.x;
     B.dimg.v[DI_G * npix + p] = drgb.y;
     B.dimg.v[DI_B * npix + p] = drgb.z;
-    B.dimg.v[DI_T * npix + p] = dot(P.bg.xyz, drgb) - acc[DO_ALPHA];
+    B.dimg.v[DI_T * npix + p] = dot(P.bg, drgb) - acc[DO_ALPHA];
     B.dimg.v[DI_DEPTH * npix + p] = acc[DO_DEPTH];
     B.dimg.v[DI_NX * npix + p] = acc[DO_NX];
     B.dimg.v[DI_NY * npix + p] = acc[DO_NY];

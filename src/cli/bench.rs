@@ -418,7 +418,8 @@ fn bench_render(
     opts: svraster::raster::RenderOptions,
     json: bool,
 ) -> anyhow::Result<()> {
-    use svraster::raster::{Renderer, SceneGpu};
+    use svraster::raster::Renderer;
+    use svraster::scene::SceneGpu;
     if runs == 0 || views == 0 {
         bail!("--runs and --views must be at least 1");
     }

@@ -7,7 +7,8 @@ use std::time::Instant;
 use anyhow::{bail, Context as _};
 use svraster::data::{self, image, Camera};
 use svraster::gpu::Context;
-use svraster::raster::{Image, RenderOptions, Renderer, SceneGpu};
+use svraster::raster::{Image, RenderOptions, Renderer};
+use svraster::scene::SceneGpu;
 use svraster::scene::{checkpoint, Scene};
 
 /// A model argument: a `.safetensors` file, or a run directory holding `model.safetensors`.

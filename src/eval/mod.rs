@@ -13,8 +13,9 @@ use std::time::Instant;
 
 use crate::data::blender::Dataset;
 use crate::gpu::Context;
-use crate::raster::{RenderOptions, Renderer, SceneGpu};
+use crate::raster::{RenderOptions, Renderer};
 use crate::scene::Scene;
+use crate::scene::SceneGpu;
 use crate::{Error, Result};
 
 /// PSNR in dB of `a` against `b` on [0, 1] RGB (values clamped as when saved to PNG;

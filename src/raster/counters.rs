@@ -3,7 +3,7 @@
 //! did, independent of machine speed. Read with [`Renderer::counters`](super::Renderer::counters).
 
 /// u64 words of the work-counter buffer (`CTR_WORDS` in raster_params.glsl).
-pub(crate) const COUNTER_WORDS: usize = 16;
+pub(crate) const COUNTER_WORDS: usize = crate::gpu::glsl::CTR_WORDS as usize;
 
 /// Work done by the tile walks of the frames (and backwards) recorded with counters on
 /// ([`Renderer::set_counters`]): one walk's totals over all tiles and chunks.

@@ -28,12 +28,20 @@
 use ash::vk;
 
 mod counters;
+mod params;
+mod plan;
+mod readback;
+use crate::scene::SceneGpu;
 pub(crate) use counters::COUNTER_WORDS;
 pub use counters::{WalkCounters, WorkCounters};
+pub(crate) use params::AUX_CHANNELS;
+use params::{ChunkPush, FrameParams, ParamsPush, SetupPush};
+pub use plan::FrameGeometry;
+use plan::{Grow, Plan};
+pub use readback::{FrameStats, Image};
 
 use crate::data::Camera;
-use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
-use crate::push_constants;
+use crate::gpu::{glsl, kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
 use crate::scan::PrefixScan;
 use crate::scene::{Scene, MAX_LEVEL};
 use crate::sort::{Count, RadixSort, SortBuffers, Sorted};
@@ -42,18 +50,17 @@ use crate::{Error, Result};
 /// Tile edge in pixels.
 pub const TILE: u32 = 16;
 /// Image channels of the planar output: r, g, b, alpha, depth, median depth, normal.
-pub const CHANNELS: usize = 9;
+pub const CHANNELS: usize = glsl::IMG_CHANNELS as usize;
 /// Largest image edge (pixel rectangles pack 16-bit coordinates).
 pub const MAX_IMAGE_EDGE: u32 = 65535;
 
-const STATS_WORDS: usize = 16;
-const STAT_USED: usize = 2;
-const STAT_FLAGS: usize = 3;
-const STAT_MAX_TILE: usize = 4;
-const STAT_VISIBLE: usize = 5;
-const STAT_ARGS: u64 = 8;
-const FLAG_ENTRY_OVERFLOW: u32 = 1;
-const FLAG_NEED_CHUNKS: u32 = 2;
+// Words of the frame's stats buffer and its flags (defined in raster_params.glsl).
+const STATS_WORDS: usize = glsl::STATS_WORDS as usize;
+const STAT_USED: usize = glsl::STAT_USED as usize;
+const STAT_FLAGS: usize = glsl::STAT_FLAGS as usize;
+const STAT_MAX_TILE: usize = glsl::STAT_MAX_TILE as usize;
+const STAT_VISIBLE: usize = glsl::STAT_VISIBLE as usize;
+const STAT_ARGS: u64 = glsl::STAT_ARGS as u64;
 
 /// Rendering options.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -83,298 +90,6 @@ impl Default for RenderOptions {
             supersample: 1.0,
         }
     }
-}
-
-/// A rendered frame (row-major, at the camera's resolution).
-#[derive(Clone, Debug, Default)]
-pub struct Image {
-    pub width: u32,
-    pub height: u32,
-    pub rgb: Vec<[f32; 3]>,
-    pub alpha: Vec<f32>,
-    /// Mean depth Σ Tᵢ dᵢ as camera z (0 where nothing is hit; divide by alpha for the
-    /// expected depth of the surface).
-    pub depth: Vec<f32>,
-    /// Median depth (camera z) where the transmittance crosses 0.5; 0 if it never does.
-    pub depth_median: Vec<f32>,
-    /// Σ Tᵢ αᵢ nᵢ of the voxels' unit density gradients (world space; not normalised).
-    pub normal: Vec<[f32; 3]>,
-}
-
-/// What the last recorded frame needed (read after it completed).
-#[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct FrameStats {
-    /// (tile, sign) entries requested by the preprocess.
-    pub entries: u64,
-    /// Entries actually emitted and sorted (`entries` clamped to the capacity).
-    pub entries_used: u32,
-    /// Voxels with at least one entry.
-    pub visible_voxels: u32,
-    /// Longest tile list.
-    pub max_tile_entries: u32,
-    /// More entries than the key buffers hold: the frame is incomplete.
-    pub entry_overflow: bool,
-    /// A tile list is longer than the composite chunks recorded: incomplete.
-    pub need_chunks: bool,
-    /// Tiles and render resolution of the frame.
-    pub tiles: u32,
-    pub render_width: u32,
-    pub render_height: u32,
-    /// Composite chunks recorded and sort bits used.
-    pub chunks: u32,
-    pub sort_bits: u32,
-}
-
-impl FrameStats {
-    /// True when the frame is complete (nothing was truncated).
-    pub fn complete(&self) -> bool {
-        !self.entry_overflow && !self.need_chunks
-    }
-}
-
-/// A scene's parameters on the device.
-pub struct SceneGpu {
-    pub(crate) octpath: Buffer,
-    pub(crate) level: Buffer,
-    pub(crate) corners: Buffer,
-    pub(crate) geo: Buffer,
-    pub(crate) sh0: Buffer,
-    pub(crate) shs: Buffer,
-    pub voxels: u32,
-    pub grid_points: u32,
-    pub max_level: u32,
-    /// Active SH degree (≤ the stored degree; training raises it progressively).
-    pub sh_degree: u32,
-    /// SH coefficients stored per voxel besides the DC term, `(D+1)² − 1` of the stored
-    /// degree D.
-    pub shs_per_voxel: u32,
-    pub center: [f32; 3],
-    pub extent: f32,
-    pub background: [f32; 3],
-}
-
-impl SceneGpu {
-    /// Validates and uploads a scene.
-    pub fn upload(ctx: &Context, scene: &Scene) -> Result<SceneGpu> {
-        scene.validate()?;
-        let level: Vec<u32> = scene.octlevel.iter().map(|&l| l as u32).collect();
-        let corners: Vec<u32> = scene.corners.iter().flatten().copied().collect();
-        let sh0: Vec<f32> = scene.sh0.iter().flatten().copied().collect();
-        Ok(SceneGpu {
-            octpath: ctx.buffer_from("scene.octpath", &scene.octpath)?,
-            level: ctx.buffer_from("scene.level", &level)?,
-            corners: ctx.buffer_from("scene.corners", &corners)?,
-            geo: ctx.buffer_from("scene.geo", &scene.geo)?,
-            sh0: ctx.buffer_from("scene.sh0", &sh0)?,
-            shs: ctx.buffer_from("scene.shs", &scene.shs)?,
-            voxels: scene.num_voxels() as u32,
-            grid_points: scene.num_grid_points() as u32,
-            max_level: scene.max_level(),
-            sh_degree: scene.sh_degree,
-            shs_per_voxel: scene.shs_per_voxel() as u32,
-            center: scene.center,
-            extent: scene.extent,
-            background: scene.background,
-        })
-    }
-
-    /// Downloads the current parameters (density, SH) into `scene`, whose topology
-    /// must be the one this was uploaded from.
-    pub fn download_params(&self, ctx: &Context, scene: &mut Scene) -> Result<()> {
-        if scene.num_voxels() != self.voxels as usize
-            || scene.num_grid_points() != self.grid_points as usize
-            || scene.shs_per_voxel() != self.shs_per_voxel as usize
-        {
-            return Err(Error::Invalid(
-                "download_params: the scene's topology differs from the device copy".into(),
-            ));
-        }
-        scene.geo = ctx.download(&self.geo, 0, scene.geo.len())?;
-        let sh0: Vec<f32> = ctx.download(&self.sh0, 0, scene.sh0.len() * 3)?;
-        scene.sh0 = sh0.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-        if !scene.shs.is_empty() {
-            scene.shs = ctx.download(&self.shs, 0, scene.shs.len())?;
-        }
-        Ok(())
-    }
-
-    /// Device bytes held by the scene.
-    pub fn bytes(&self) -> u64 {
-        [
-            &self.octpath,
-            &self.level,
-            &self.corners,
-            &self.geo,
-            &self.sh0,
-            &self.shs,
-        ]
-        .iter()
-        .map(|b| b.size())
-        .sum()
-    }
-}
-
-/// Mirror of `FrameParams` in glsl/lib/raster_params.glsl (std430: vec4s, then u64s).
-#[repr(C)]
-#[derive(Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
-struct FrameParams {
-    w2c: [[f32; 4]; 3],
-    c2w: [[f32; 4]; 3],
-    intr: [f32; 4],
-    cam_frac: [f32; 4],
-    bg: [f32; 4],
-    dims: [u32; 4],
-    cfg: [u32; 4],
-    cfg2: [u32; 4],
-    cfg3: [u32; 4],
-    ss: [f32; 4],
-    cam_int: [i32; 4],
-    octpath: u64,
-    level: u64,
-    corners: u64,
-    geo: u64,
-    sh0: u64,
-    shs: u64,
-    bbox: u64,
-    signs: u64,
-    counts: u64,
-    offsets: u64,
-    geo8: u64,
-    rgb: u64,
-    nrm: u64,
-    cs: u64,
-    keys: u64,
-    vals: u64,
-    skeys: u64,
-    svals: u64,
-    ranges: u64,
-    img: u64,
-    med_id: u64,
-    med_t: u64,
-    out_img: u64,
-    stats: u64,
-    last: u64,
-    aux: u64,
-    /// Optional per-voxel max-weight target (0: off), see [`Renderer::set_max_weight_target`].
-    maxw: u64,
-    /// Optional work counters (0: off), see [`Renderer::set_counters`].
-    counters: u64,
-}
-const _: () = assert!(std::mem::size_of::<FrameParams>() == 240 + 28 * 8);
-/// Planar channels of the per-pixel training aux buffer (`AUX_*` in raster_params.glsl).
-pub(crate) const AUX_CHANNELS: u64 = 4;
-
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct ParamsPush {
-    params: u64,
-}
-push_constants!(ParamsPush, kernels::RASTER_PREPROCESS);
-push_constants!(ParamsPush, kernels::RASTER_EMIT_KEYS);
-push_constants!(ParamsPush, kernels::RASTER_TILE_RANGES);
-push_constants!(ParamsPush, kernels::RASTER_FINALIZE);
-push_constants!(ParamsPush, kernels::RASTER_DOWNSAMPLE);
-
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct SetupPush {
-    params: u64,
-    max_groups_x: u32,
-    pad: u32,
-}
-push_constants!(SetupPush, kernels::RASTER_FRAME_SETUP);
-
-#[repr(C)]
-#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
-struct ChunkPush {
-    params: u64,
-    chunk: u32,
-    pad: u32,
-}
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_MAXW);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_MAXW);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_MAXW);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_COUNTERS);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_COUNTERS);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_COUNTERS);
-
-/// A buffer that grows (by 1.5×) when more is needed.
-struct Grow {
-    name: &'static str,
-    buf: Option<Buffer>,
-}
-
-impl Grow {
-    fn new(name: &'static str) -> Grow {
-        Grow { name, buf: None }
-    }
-    fn ensure(&mut self, ctx: &Context, bytes: u64) -> Result<()> {
-        let bytes = bytes.max(16);
-        if self.buf.as_ref().is_some_and(|b| b.size() >= bytes) {
-            return Ok(());
-        }
-        self.buf = None;
-        let want = bytes.saturating_add(bytes / 2);
-        let limit = ctx.info().max_memory_allocation_size;
-        let size = if want > limit && bytes <= limit {
-            limit
-        } else {
-            want
-        };
-        self.buf = Some(ctx.buffer(self.name, size, Memory::Device)?);
-        Ok(())
-    }
-    fn get(&self) -> &Buffer {
-        self.buf.as_ref().expect("buffer ensured before use")
-    }
-    fn address(&self) -> u64 {
-        self.get().address()
-    }
-    fn bytes(&self) -> u64 {
-        self.buf.as_ref().map_or(0, |b| b.size())
-    }
-}
-
-/// Everything a recorded frame needs to interpret its results.
-#[derive(Clone, Copy, Debug)]
-struct Plan {
-    out_w: u32,
-    out_h: u32,
-    render_w: u32,
-    render_h: u32,
-    tiles: u32,
-    chunks: u32,
-    sort_bits: u32,
-    supersampled: bool,
-    /// Recorded with work counters on.
-    counters: bool,
-}
-
-impl Plan {
-    /// The sort result lands in the alternate buffers after an odd number of passes.
-    fn sorted_in_alt(&self) -> bool {
-        self.sort_bits.div_ceil(8) % 2 == 1
-    }
-}
-
-/// Geometry of a recorded frame (see [`Renderer::last_frame`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct FrameGeometry {
-    pub out_width: u32,
-    pub out_height: u32,
-    pub render_width: u32,
-    pub render_height: u32,
-    pub tiles_x: u32,
-    pub tiles_y: u32,
-    pub supersampled: bool,
-    /// Device address of the frame's parameter block (`FrameParams` in GLSL).
-    pub params: u64,
-    /// Whether the frame was recorded with work counters on (the backward then counts
-    /// into the same buffer).
-    pub counters: bool,
 }
 
 /// The forward rasterizer with its kernels and growable frame buffers.
@@ -568,154 +283,6 @@ impl Renderer {
         self.entry_cap
     }
 
-    /// Reserves key buffers for at least `entries` (tile, sign) entries.
-    pub fn reserve_entries(&mut self, entries: u64) -> Result<()> {
-        if entries <= self.entry_cap as u64 {
-            return Ok(());
-        }
-        let max = RadixSort::MAX_CAPACITY as u64;
-        if entries > max {
-            return Err(Error::Capacity(format!(
-                "a frame needs {entries} (tile, sign) entries; at most {max} are supported. \
-                 Render at a lower resolution or with fewer voxels"
-            )));
-        }
-        let cap = (entries + entries / 4).clamp(1 << 16, max) as u32;
-        let ctx = self.ctx.clone();
-        // Drop the old buffers first so peak memory stays low.
-        self.sort = None;
-        for (g, w) in [
-            (&mut self.keys, 8u64),
-            (&mut self.keys_alt, 8),
-            (&mut self.vals, 4),
-            (&mut self.vals_alt, 4),
-        ] {
-            g.buf = None;
-            g.ensure(&ctx, cap as u64 * w)?;
-        }
-        self.sort = Some(RadixSort::new(&ctx, cap)?);
-        self.entry_cap = cap;
-        Ok(())
-    }
-
-    fn reserve_voxels(&mut self, n: u32) -> Result<()> {
-        if n <= self.voxel_cap && self.scan.is_some() {
-            return Ok(());
-        }
-        let cap = n.max(1024).saturating_add(n / 4);
-        let ctx = self.ctx.clone();
-        for (g, w) in [
-            (&mut self.bbox, 8u64),
-            (&mut self.signs, 4),
-            (&mut self.counts, 4),
-            (&mut self.offsets, 4),
-            (&mut self.geo8, 32),
-            (&mut self.rgb, 12),
-            (&mut self.nrm, 12),
-            (&mut self.cs, 16),
-        ] {
-            g.ensure(&ctx, cap as u64 * w)?;
-        }
-        self.scan = Some(PrefixScan::new(&ctx, cap)?);
-        self.voxel_cap = cap;
-        Ok(())
-    }
-
-    /// Checks the frame can be rendered and works out its plan.
-    fn plan(&self, scene: &SceneGpu, cam: &Camera, opts: &RenderOptions) -> Result<Plan> {
-        cam.validate()?;
-        if !(1..=3).contains(&opts.samples) {
-            return Err(Error::Invalid(format!(
-                "samples per voxel must be 1, 2 or 3, got {}",
-                opts.samples
-            )));
-        }
-        if !(opts.supersample.is_finite() && (1.0..=8.0).contains(&opts.supersample)) {
-            return Err(Error::Invalid(format!(
-                "supersampling factor must be in 1..=8, got {}",
-                opts.supersample
-            )));
-        }
-        let ss = opts.supersample as f64;
-        let render_w = ((cam.width as f64 * ss).round() as u64).max(1);
-        let render_h = ((cam.height as f64 * ss).round() as u64).max(1);
-        if render_w > MAX_IMAGE_EDGE as u64 || render_h > MAX_IMAGE_EDGE as u64 {
-            return Err(Error::Invalid(format!(
-                "render size {render_w}×{render_h} exceeds {MAX_IMAGE_EDGE} pixels per edge"
-            )));
-        }
-        let (render_w, render_h) = (render_w as u32, render_h as u32);
-        let tiles_x = render_w.div_ceil(TILE);
-        let tiles_y = render_h.div_ceil(TILE);
-        let tiles = tiles_x * tiles_y;
-        let tile_bits = 32 - (tiles - 1).leading_zeros();
-        let level_bits = 3 * scene.max_level;
-        if tile_bits + level_bits > 64 {
-            let max_tiles = 1u64 << (64 - level_bits);
-            return Err(Error::Invalid(format!(
-                "a {render_w}×{render_h} render has {tiles} tiles of {TILE}×{TILE}, but 64-bit \
-                 sort keys with voxels down to level {} leave room for {max_tiles} tiles \
-                 (e.g. 4096×4096 at level 16). Render smaller (or with less supersampling)",
-                scene.max_level
-            )));
-        }
-        if (scene.sh_degree + 1).pow(2) - 1 > scene.shs_per_voxel {
-            return Err(Error::Invalid(format!(
-                "active SH degree {} exceeds the {} coefficients stored per voxel",
-                scene.sh_degree, scene.shs_per_voxel
-            )));
-        }
-        if scene.voxels as usize > crate::scene::MAX_VOXELS {
-            return Err(Error::Invalid(format!(
-                "{} voxels exceed the 29-bit voxel id limit",
-                scene.voxels
-            )));
-        }
-        Ok(Plan {
-            out_w: cam.width,
-            out_h: cam.height,
-            render_w,
-            render_h,
-            tiles,
-            chunks: self.chunks,
-            sort_bits: if scene.voxels == 0 {
-                0
-            } else {
-                tile_bits + level_bits
-            },
-            supersampled: render_w != cam.width || render_h != cam.height,
-            counters: self.counters_on,
-        })
-    }
-
-    /// Allocates what a frame of `scene` seen by `cam` needs. Call before recording;
-    /// it may replace buffers, so no earlier frame of this renderer may be in flight.
-    pub fn prepare(&mut self, scene: &SceneGpu, cam: &Camera, opts: &RenderOptions) -> Result<()> {
-        let plan = self.plan(scene, cam, opts)?;
-        self.reserve_voxels(scene.voxels)?;
-        if self.entry_cap == 0 {
-            self.reserve_entries(scene.voxels as u64 * 2 + 4096)?;
-        }
-        let ctx = self.ctx.clone();
-        let rpix = plan.render_w as u64 * plan.render_h as u64;
-        self.ranges.ensure(&ctx, plan.tiles as u64 * 8)?;
-        self.img.ensure(&ctx, rpix * CHANNELS as u64 * 4)?;
-        self.med_id.ensure(&ctx, rpix * 4)?;
-        self.med_t.ensure(&ctx, rpix * 4)?;
-        self.last_id.ensure(&ctx, rpix * 4)?;
-        self.aux.ensure(&ctx, rpix * AUX_CHANNELS * 4)?;
-        let opix = plan.out_w as u64 * plan.out_h as u64;
-        self.out_img.ensure(
-            &ctx,
-            if plan.supersampled {
-                opix * CHANNELS as u64 * 4
-            } else {
-                16
-            },
-        )?;
-        Ok(())
-    }
-
     /// Records only the first stage of a frame (after [`Renderer::prepare`]): the frame's
     /// parameter block and the per-voxel preprocess (projection, per-voxel tile-entry
     /// counts, camera-relative centres). No image is produced; [`Renderer::last_frame`]
@@ -798,35 +365,31 @@ impl Renderer {
                 cam_fine[0].1 as f32,
                 cam_fine[1].1 as f32,
                 cam_fine[2].1 as f32,
-                unit as f32,
             ],
+            unit: unit as f32,
             bg: [
                 scene.background[0],
                 scene.background[1],
                 scene.background[2],
-                cam.near as f32,
             ],
-            dims: [
-                plan.render_w,
-                plan.render_h,
-                plan.render_w.div_ceil(TILE),
-                plan.render_h.div_ceil(TILE),
-            ],
-            cfg: [
-                scene.voxels,
-                scene.sh_degree,
-                scene.max_level,
-                self.entry_cap,
-            ],
-            cfg2: [
-                plan.chunks,
-                self.chunk_size,
-                3 * scene.max_level,
-                plan.out_w,
-            ],
-            cfg3: [plan.out_h, plan.supersampled as u32, scene.shs_per_voxel, 0],
-            ss: [sx, sy, sx.max(1.0), sy.max(1.0)],
-            cam_int: [cam_fine[0].0, cam_fine[1].0, cam_fine[2].0, 0],
+            near: cam.near as f32,
+            render_size: [plan.render_w, plan.render_h],
+            tiles: [plan.render_w.div_ceil(TILE), plan.render_h.div_ceil(TILE)],
+            voxels: scene.voxels,
+            sh_degree: scene.sh_degree,
+            max_level: scene.max_level,
+            entry_capacity: self.entry_cap,
+            chunks: plan.chunks,
+            chunk_size: self.chunk_size,
+            key_shift: 3 * scene.max_level,
+            supersampled: plan.supersampled as u32,
+            out_size: [plan.out_w, plan.out_h],
+            shs_stride: scene.shs_per_voxel,
+            pad0: 0,
+            ss_scale: [sx, sy],
+            filter_radius: [sx.max(1.0), sy.max(1.0)],
+            cam_int: [cam_fine[0].0, cam_fine[1].0, cam_fine[2].0],
+            pad1: 0,
             octpath: scene.octpath.address(),
             level: scene.level.address(),
             corners: scene.corners.address(),
@@ -1015,80 +578,6 @@ impl Renderer {
         })
     }
 
-    /// Geometry and parameter block of the last recorded frame, for passes recorded
-    /// after it that read its per-pixel state (the training backward).
-    pub fn last_frame(&self) -> Result<FrameGeometry> {
-        let p = self.last_plan()?;
-        Ok(FrameGeometry {
-            out_width: p.out_w,
-            out_height: p.out_h,
-            render_width: p.render_w,
-            render_height: p.render_h,
-            tiles_x: p.render_w.div_ceil(TILE),
-            tiles_y: p.render_h.div_ceil(TILE),
-            supersampled: p.supersampled,
-            params: self.params.address(),
-            counters: p.counters,
-        })
-    }
-
-    /// The device image of the last frame at output resolution (planar, [`CHANNELS`]
-    /// channels): the supersampled frame's downsampled copy, else the render itself.
-    pub fn output_address(&self) -> Result<u64> {
-        let p = self.last_plan()?;
-        Ok(if p.supersampled {
-            self.out_img.address()
-        } else {
-            self.img.address()
-        })
-    }
-
-    fn last_plan(&self) -> Result<Plan> {
-        self.last
-            .ok_or_else(|| Error::Invalid("no frame was recorded".into()))
-    }
-
-    /// Reads the counters of the last recorded frame (it must have completed).
-    pub fn stats(&self) -> Result<FrameStats> {
-        let plan = self.last_plan()?;
-        let s: Vec<u32> = self.ctx.download(&self.stats, 0, STATS_WORDS)?;
-        let flags = s[STAT_FLAGS];
-        Ok(FrameStats {
-            entries: s[0] as u64 | (s[1] as u64) << 32,
-            entries_used: s[STAT_USED],
-            visible_voxels: s[STAT_VISIBLE],
-            max_tile_entries: s[STAT_MAX_TILE],
-            entry_overflow: flags & FLAG_ENTRY_OVERFLOW != 0,
-            need_chunks: flags & FLAG_NEED_CHUNKS != 0,
-            tiles: plan.tiles,
-            render_width: plan.render_w,
-            render_height: plan.render_h,
-            chunks: plan.chunks,
-            sort_bits: plan.sort_bits,
-        })
-    }
-
-    /// Grows whatever the last frame found short (entries, chunks). Returns whether
-    /// anything changed, i.e. whether the frame must be rendered again.
-    pub fn grow_for(&mut self, stats: &FrameStats) -> Result<bool> {
-        let mut changed = false;
-        if stats.entry_overflow {
-            self.reserve_entries(stats.entries)?;
-            changed = true;
-        }
-        let want = stats.max_tile_entries.div_ceil(self.chunk_size).max(1);
-        if want > self.chunks {
-            self.chunks = want;
-            changed = true;
-        } else if stats.need_chunks {
-            // The longest list is only measured by the chunks that ran; with entries
-            // clamped this frame, re-measure next time.
-            self.chunks += 1;
-            changed = true;
-        }
-        Ok(changed)
-    }
-
     /// Renders a frame and reads it back, growing and re-rendering on any shortfall.
     pub fn render(
         &mut self,
@@ -1131,51 +620,6 @@ impl Renderer {
             }
         }
         Err(Error::Gpu("frame still incomplete after 8 attempts".into()))
-    }
-
-    /// Reads the image of the last completed frame.
-    pub fn read_image(&self) -> Result<Image> {
-        let plan = self.last_plan()?;
-        let (buf, w, h) = if plan.supersampled {
-            (self.out_img.get(), plan.out_w, plan.out_h)
-        } else {
-            (self.img.get(), plan.render_w, plan.render_h)
-        };
-        let np = (w * h) as usize;
-        let raw: Vec<f32> = self.ctx.download(buf, 0, np * CHANNELS)?;
-        let ch = |c: usize| &raw[c * np..(c + 1) * np];
-        let (r, g, b) = (ch(0), ch(1), ch(2));
-        let (nx, ny, nz) = (ch(6), ch(7), ch(8));
-        Ok(Image {
-            width: w,
-            height: h,
-            rgb: (0..np).map(|i| [r[i], g[i], b[i]]).collect(),
-            alpha: ch(3).to_vec(),
-            depth: ch(4).to_vec(),
-            depth_median: ch(5).to_vec(),
-            normal: (0..np).map(|i| [nx[i], ny[i], nz[i]]).collect(),
-        })
-    }
-
-    /// The sorted entry values (`sign << 29 | voxel`) of every tile of the last completed
-    /// frame, in compositing order (for tests and debugging; reads back everything).
-    pub fn tile_lists(&self) -> Result<Vec<Vec<u32>>> {
-        let plan = self.last_plan()?;
-        let stats = self.stats()?;
-        let ranges: Vec<u32> = self
-            .ctx
-            .download(self.ranges.get(), 0, plan.tiles as usize * 2)?;
-        let vals = if plan.sorted_in_alt() {
-            &self.vals_alt
-        } else {
-            &self.vals
-        };
-        let sorted: Vec<u32> = self
-            .ctx
-            .download(vals.get(), 0, stats.entries_used as usize)?;
-        Ok((0..plan.tiles as usize)
-            .map(|t| sorted[ranges[2 * t] as usize..ranges[2 * t + 1] as usize].to_vec())
-            .collect())
     }
 
     /// Device bytes held by the frame buffers.

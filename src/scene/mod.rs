@@ -13,11 +13,13 @@
 //! follows the number of voxels.
 
 pub mod checkpoint;
+mod device;
+pub use device::SceneGpu;
 
 use crate::{Error, Result};
 
 /// Deepest octree level (finest grid 65536³).
-pub const MAX_LEVEL: u32 = 16;
+pub const MAX_LEVEL: u32 = crate::gpu::glsl::MAX_LEVEL;
 /// Grid-point coordinates at the finest level run over `0..=GRID_MAX`.
 pub const GRID_MAX: u32 = 1 << MAX_LEVEL;
 /// Highest supported SH degree.

@@ -12,24 +12,26 @@ use ash::vk;
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
-use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
+use crate::gpu::{glsl, kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
 use crate::push_constants;
 
 /// Elements per onesweep tile (WG × KPT in onesweep.comp).
 pub const SORT_TILE: u32 = 128 * 16;
 /// Keys per histogram workgroup (WG × KPT in histogram.comp).
 const HIST_CHUNK: u32 = 256 * 16;
-/// Words of the state buffer (ST_WORDS in pass_state.glsl).
-pub(crate) const STATE_WORDS: usize = 32 + 8 * 256;
-pub(crate) const ST_N: usize = 0;
-pub(crate) const ST_REQUESTED: usize = 1;
-pub(crate) const ST_ERRORS: usize = 3;
-pub(crate) const ST_TOTAL: usize = 4;
-pub(crate) const ST_ARGS_TILES: u64 = 16 * 4;
-const ST_ARGS_CHUNKS: u64 = 20 * 4;
-/// Error bits of the state buffer.
-pub const ERR_OVERFLOW: u32 = 1;
-pub const ERR_LOOKBACK: u32 = 2;
+// Words of the state buffer (ST_* in pass_state.glsl).
+/// Words of the state buffer (ST_WORDS in pass_state.glsl: 8 passes × 256 digits after
+/// the header).
+pub(crate) const STATE_WORDS: usize = glsl::ST_HIST as usize + 8 * 256;
+pub(crate) const ST_N: usize = glsl::ST_N as usize;
+pub(crate) const ST_REQUESTED: usize = glsl::ST_REQUESTED as usize;
+pub(crate) const ST_ERRORS: usize = glsl::ST_ERRORS as usize;
+pub(crate) const ST_TOTAL: usize = glsl::ST_TOTAL as usize;
+/// Byte offsets of the indirect dispatch arguments in the state buffer.
+pub(crate) const ST_ARGS_TILES: u64 = glsl::ST_ARGS_TILES as u64 * 4;
+const ST_ARGS_CHUNKS: u64 = glsl::ST_ARGS_CHUNKS as u64 * 4;
+/// Error bits of the state buffer (ERR_* in pass_state.glsl).
+pub use crate::gpu::glsl::{ERR_LOOKBACK, ERR_OVERFLOW};
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]

@@ -31,8 +31,9 @@ use crate::data::Camera;
 use crate::error::{Error, Result};
 use crate::gpu::{grid_2d, kernels, recorder, Buffer, Context, Kernel, Memory};
 use crate::push_constants;
-use crate::raster::{RenderOptions, Renderer, SceneGpu};
+use crate::raster::{RenderOptions, Renderer};
 use crate::scene::Scene;
+use crate::scene::SceneGpu;
 
 /// Voxels per workgroup of the interval kernel.
 const GROUP: u32 = 256;

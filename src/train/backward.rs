@@ -12,29 +12,31 @@ use ash::vk;
 
 use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
 use crate::push_constants;
-use crate::raster::{FrameGeometry, FrameStats, SceneGpu};
+use crate::raster::{FrameGeometry, FrameStats};
+use crate::scene::SceneGpu;
 use crate::{Error, Result};
 
 /// Planar channels of the output-resolution gradient image the losses write
 /// (`DO_*` in glsl/lib/backward_params.glsl).
 pub mod dout {
-    pub const R: usize = 0;
-    pub const G: usize = 1;
-    pub const B: usize = 2;
-    pub const ALPHA: usize = 3;
-    pub const DEPTH: usize = 4;
-    pub const NX: usize = 5;
-    pub const NY: usize = 6;
-    pub const NZ: usize = 7;
-    pub const GT_R: usize = 8;
-    pub const GT_G: usize = 9;
-    pub const GT_B: usize = 10;
-    pub const CHANNELS: usize = 11;
+    use crate::gpu::glsl;
+    pub const R: usize = glsl::DO_R as usize;
+    pub const G: usize = glsl::DO_G as usize;
+    pub const B: usize = glsl::DO_B as usize;
+    pub const ALPHA: usize = glsl::DO_ALPHA as usize;
+    pub const DEPTH: usize = glsl::DO_DEPTH as usize;
+    pub const NX: usize = glsl::DO_NX as usize;
+    pub const NY: usize = glsl::DO_NY as usize;
+    pub const NZ: usize = glsl::DO_NZ as usize;
+    pub const GT_R: usize = glsl::DO_GTR as usize;
+    pub const GT_G: usize = glsl::DO_GTG as usize;
+    pub const GT_B: usize = glsl::DO_GTB as usize;
+    pub const CHANNELS: usize = glsl::DO_CHANNELS as usize;
 }
-const DI_CHANNELS: u64 = 11;
-const BS_CHANNELS: u64 = 4;
+const DI_CHANNELS: u64 = crate::gpu::glsl::DI_CHANNELS as u64;
+const BS_CHANNELS: u64 = crate::gpu::glsl::BS_CHANNELS as u64;
 /// Floats per voxel of the per-voxel gradient record.
-const VG_STRIDE: u64 = 16;
+const VG_STRIDE: u64 = crate::gpu::glsl::VG_STRIDE as u64;
 
 /// Gradients of the model parameters (same layouts as [`SceneGpu`]'s buffers), and the
 /// per-voxel subdivision priority Σ|α·∂L/∂α|, which accumulates over backward passes
@@ -94,13 +96,18 @@ pub struct EntryLosses {
     pub lambda_r: f32,
 }
 
-/// Mirror of `BackParams` in glsl/lib/backward_params.glsl.
+/// Mirror of `BackParams` in glsl/lib/backward_params.glsl (checked by `gpu_layout!`).
 #[repr(C)]
 #[derive(Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
 struct BackParams {
-    w: [f32; 4],
-    cfg: [u32; 4],
-    dims: [u32; 4],
+    lambda_dist: f32,
+    lambda_r: f32,
+    chunks: u32,
+    chunk_size: u32,
+    voxels: u32,
+    pad0: u32,
+    out_size: [u32; 2],
+    render_size: [u32; 2],
     dimg: u64,
     dout: u64,
     bstate: u64,
@@ -111,6 +118,7 @@ struct BackParams {
     priority: u64,
     lost: u64,
 }
+gpu_layout!(BackParams, BackParams);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -336,14 +344,14 @@ impl Backward {
         let chunks = stats.max_tile_entries.div_ceil(self.chunk_size).max(1);
         let get = |b: &Option<Buffer>| b.as_ref().expect("prepared").address();
         let params = BackParams {
-            w: [losses.lambda_dist, losses.lambda_r, 0.0, 0.0],
-            cfg: [chunks, self.chunk_size, scene.voxels, 0],
-            dims: [
-                frame.out_width,
-                frame.out_height,
-                frame.render_width,
-                frame.render_height,
-            ],
+            lambda_dist: losses.lambda_dist,
+            lambda_r: losses.lambda_r,
+            chunks,
+            chunk_size: self.chunk_size,
+            voxels: scene.voxels,
+            pad0: 0,
+            out_size: [frame.out_width, frame.out_height],
+            render_size: [frame.render_width, frame.render_height],
             dimg: get(&self.dimg),
             dout: get(&self.dout),
             bstate: get(&self.bstate),

@@ -26,7 +26,8 @@ use super::topology::Topology;
 use crate::data::blender::Dataset;
 use crate::data::Camera;
 use crate::gpu::{recorder, Buffer, Context, Memory, Timestamps};
-use crate::raster::{RenderOptions, Renderer, SceneGpu};
+use crate::raster::{RenderOptions, Renderer};
+use crate::scene::SceneGpu;
 use crate::scene::{octpath_from_ijk, Scene};
 use crate::{Error, Result};
 

@@ -1,0 +1,106 @@
+//! The frame's parameter block and the push-constant blocks of the raster kernels, as
+//! `#[repr(C)]` mirrors of their GLSL declarations (checked at compile time).
+
+use crate::gpu::{glsl, kernels};
+use crate::push_constants;
+
+/// Mirror of `FrameParams` in glsl/lib/raster_params.glsl, checked field by field against
+/// the compiled SPIR-V (`gpu_layout!`).
+#[repr(C)]
+#[derive(Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
+pub(super) struct FrameParams {
+    pub(super) w2c: [[f32; 4]; 3],
+    pub(super) c2w: [[f32; 4]; 3],
+    pub(super) intr: [f32; 4],
+    pub(super) cam_frac: [f32; 3],
+    pub(super) unit: f32,
+    pub(super) bg: [f32; 3],
+    pub(super) near: f32,
+    pub(super) render_size: [u32; 2],
+    pub(super) tiles: [u32; 2],
+    pub(super) voxels: u32,
+    pub(super) sh_degree: u32,
+    pub(super) max_level: u32,
+    pub(super) entry_capacity: u32,
+    pub(super) chunks: u32,
+    pub(super) chunk_size: u32,
+    pub(super) key_shift: u32,
+    pub(super) supersampled: u32,
+    pub(super) out_size: [u32; 2],
+    pub(super) shs_stride: u32,
+    pub(super) pad0: u32,
+    pub(super) ss_scale: [f32; 2],
+    pub(super) filter_radius: [f32; 2],
+    pub(super) cam_int: [i32; 3],
+    pub(super) pad1: i32,
+    pub(super) octpath: u64,
+    pub(super) level: u64,
+    pub(super) corners: u64,
+    pub(super) geo: u64,
+    pub(super) sh0: u64,
+    pub(super) shs: u64,
+    pub(super) bbox: u64,
+    pub(super) signs: u64,
+    pub(super) counts: u64,
+    pub(super) offsets: u64,
+    pub(super) geo8: u64,
+    pub(super) rgb: u64,
+    pub(super) nrm: u64,
+    pub(super) cs: u64,
+    pub(super) keys: u64,
+    pub(super) vals: u64,
+    pub(super) skeys: u64,
+    pub(super) svals: u64,
+    pub(super) ranges: u64,
+    pub(super) img: u64,
+    pub(super) med_id: u64,
+    pub(super) med_t: u64,
+    pub(super) out_img: u64,
+    pub(super) stats: u64,
+    pub(super) last: u64,
+    pub(super) aux: u64,
+    /// Optional per-voxel max-weight target (0: off), see [`Renderer::set_max_weight_target`].
+    pub(super) maxw: u64,
+    /// Optional work counters (0: off), see [`Renderer::set_counters`].
+    pub(super) counters: u64,
+}
+gpu_layout!(FrameParams, FrameParams);
+/// Planar channels of the per-pixel training aux buffer (`AUX_*` in raster_params.glsl).
+pub(crate) const AUX_CHANNELS: u64 = glsl::AUX_CHANNELS as u64;
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub(super) struct ParamsPush {
+    pub(super) params: u64,
+}
+push_constants!(ParamsPush, kernels::RASTER_PREPROCESS);
+push_constants!(ParamsPush, kernels::RASTER_EMIT_KEYS);
+push_constants!(ParamsPush, kernels::RASTER_TILE_RANGES);
+push_constants!(ParamsPush, kernels::RASTER_FINALIZE);
+push_constants!(ParamsPush, kernels::RASTER_DOWNSAMPLE);
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub(super) struct SetupPush {
+    pub(super) params: u64,
+    pub(super) max_groups_x: u32,
+    pub(super) pad: u32,
+}
+push_constants!(SetupPush, kernels::RASTER_FRAME_SETUP);
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub(super) struct ChunkPush {
+    pub(super) params: u64,
+    pub(super) chunk: u32,
+    pub(super) pad: u32,
+}
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_MAXW);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_MAXW);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_MAXW);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_COUNTERS);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_COUNTERS);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_COUNTERS);
