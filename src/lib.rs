@@ -6,6 +6,7 @@
 //! - [`data`]: cameras and datasets.
 //! - [`eval`]: PSNR, SSIM and model evaluation (the numbers every report quotes).
 
+pub mod adapt;
 pub mod data;
 pub mod error;
 pub mod eval;

@@ -24,11 +24,11 @@ mod common;
 
 use common::reference::{self, alpha_of, pixel_ray, EARLY_STOP_T, MIN_ALPHA};
 use common::{camera_inside, camera_outside, context, finish, random_scene, Rng};
+use svraster::adapt::stats::{StatsPass, VoxelStats};
 use svraster::data::Camera;
 use svraster::raster::{Image, RenderOptions, Renderer};
 use svraster::scene::SceneGpu;
 use svraster::scene::{octpath_from_ijk, Scene};
-use svraster::train::adapt_stats::{StatsPass, VoxelStats};
 
 /// Max abs distance of a max weight from the reference range (the f32 rounding of α's
 /// exp and of the products, which the range does not model).

@@ -4,10 +4,10 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use svraster::data::blender::{area_resample, load_split};
 use svraster::data::demo::{self, DemoOptions, PRIMITIVES};
 use svraster::data::image::{load_rgba, save_gray_png, save_rgb_png, save_rgba_png};
 use svraster::data::Camera;
+use svraster::data::{area_resample, load_split};
 use svraster::scene::{ijk_from_octpath, Scene};
 
 /// A fresh folder under the system temp dir, removed on drop.

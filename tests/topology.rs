@@ -18,12 +18,12 @@ use std::collections::BTreeMap;
 
 use common::reference::trilinear;
 use common::{camera_inside, camera_outside, context, finish, random_scene, Rng};
+use svraster::adapt::topology::{Moments, Topology};
 use svraster::data::Camera;
 use svraster::gpu::Context;
 use svraster::raster::{Image, RenderOptions, Renderer};
 use svraster::scene::SceneGpu;
 use svraster::scene::{key_coords, octpath_from_ijk, voxel_corner_keys, Scene, MAX_LEVEL};
-use svraster::train::topology::{Moments, Topology};
 
 /// Density (and geo moment) tolerance relative to the largest |value| a grid point's
 /// result is formed from (its candidates and the parent corners they interpolate):

@@ -494,7 +494,7 @@ pub fn demo_splits(opts: &DemoOptions) -> Result<Vec<DemoSplit>> {
 /// Writes the demo dataset to `dir`: `transforms_{train,val,test}.json` (NeRF-synthetic
 /// format, `file_path` like `./train/r_0` without extension) and 8-bit RGBA PNGs with a
 /// transparent background in `train/`, `val/`, `test/`. Everything is deterministic
-/// from `opts.seed`. Images are rendered on two threads; the JSON files are written last,
+/// from `opts.seed`. Images are rendered in parallel (rayon); the JSON files are written last,
 /// so they never reference missing images.
 pub fn write_dataset(dir: &Path, opts: &DemoOptions) -> Result<()> {
     let splits = demo_splits(opts)?;
@@ -507,31 +507,11 @@ pub fn write_dataset(dir: &Path, opts: &DemoOptions) -> Result<()> {
         }
     }
 
-    const THREADS: usize = 2;
-    let results: Vec<Result<()>> = std::thread::scope(|s| {
-        let jobs = &jobs;
-        let handles: Vec<_> = (0..THREADS)
-            .map(|t| {
-                s.spawn(move || -> Result<()> {
-                    for (path, camera) in jobs.iter().skip(t).step_by(THREADS) {
-                        let rgba = render_rgba(camera);
-                        save_rgba_png(path, camera.width, camera.height, &rgba)?;
-                    }
-                    Ok(())
-                })
-            })
-            .collect();
-        handles
-            .into_iter()
-            .map(|h| {
-                h.join()
-                    .unwrap_or_else(|_| Err(Error::Invalid("demo render thread panicked".into())))
-            })
-            .collect()
-    });
-    for r in results {
-        r?;
-    }
+    use rayon::prelude::*;
+    jobs.par_iter().try_for_each(|(path, camera)| {
+        let rgba = render_rgba(camera);
+        save_rgba_png(path, camera.width, camera.height, &rgba)
+    })?;
     for split in &splits {
         let path = dir.join(format!("transforms_{}.json", split.name));
         write_atomic(&path, split.transforms.as_bytes())?;

@@ -7,8 +7,10 @@
 
 pub mod blender;
 pub mod camera;
+mod dataset;
 pub mod demo;
 pub mod image;
 
-pub use blender::{load_split, Dataset, Frame};
+pub use blender::load_split;
 pub use camera::Camera;
+pub use dataset::{area_resample, downscaled_size, Dataset, Frame};

@@ -11,7 +11,7 @@ pub mod ssim;
 
 use std::time::Instant;
 
-use crate::data::blender::Dataset;
+use crate::data::Dataset;
 use crate::gpu::Context;
 use crate::raster::{RenderOptions, Renderer};
 use crate::scene::Scene;

@@ -8,6 +8,10 @@ use std::sync::{Arc, Mutex};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 
+use super::device::{
+    compute_queue_family, cstr_field, query_support, type_name, type_rank, version_string,
+    DeviceInfo,
+};
 use crate::error::{Error, Result, VkContext};
 
 const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
@@ -23,67 +27,6 @@ pub struct ContextOptions {
     /// enabled by `SVRASTER_VALIDATION=1`. Every warning or error it reports is counted
     /// (see [`Context::validation_messages`]).
     pub validation: bool,
-}
-
-/// What the engine learned about its device.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct DeviceInfo {
-    pub name: String,
-    pub device_type: String,
-    pub driver_name: String,
-    pub driver_info: String,
-    pub api_version: String,
-    pub subgroup_size: u32,
-    pub max_storage_buffer_range: u64,
-    pub max_memory_allocation_size: u64,
-    pub max_compute_shared_memory_size: u32,
-    pub max_compute_work_group_count: [u32; 3],
-    pub max_compute_work_group_invocations: u32,
-    pub max_push_constants_size: u32,
-    pub timestamp_period_ns: f32,
-    pub device_local_heap_bytes: u64,
-    pub features_enabled: Vec<String>,
-    pub float_atomic_add: bool,
-    pub full_subgroups: bool,
-    pub is_cpu: bool,
-}
-
-impl DeviceInfo {
-    /// Whether the driver may stop an invocation's loops after a fixed number of
-    /// iterations (llvmpipe before Mesa 25 stops them after 65 535 in total and falls
-    /// through silently; measured: a 393 000-entry tile composited in one dispatch is
-    /// wrong on Mesa 22.3 and right on 25.0). Kernels then split long work into
-    /// dispatches. Assumed for every CPU device but llvmpipe of Mesa 25 or later.
-    pub fn loop_limit(&self) -> bool {
-        if !self.is_cpu {
-            return false;
-        }
-        !(self.driver_name.contains("llvmpipe") && mesa_major(&self.driver_info) >= Some(25))
-    }
-}
-
-/// Major Mesa version in a driver-info string such as "Mesa 25.0.7-2~bpo12+1 (LLVM 15.0.6)".
-fn mesa_major(driver_info: &str) -> Option<u32> {
-    driver_info
-        .split_whitespace()
-        .skip_while(|w| *w != "Mesa")
-        .nth(1)
-        .and_then(|v| v.split('.').next())
-        .and_then(|m| m.parse::<u32>().ok())
-}
-
-#[cfg(test)]
-mod tests {
-    #[test]
-    fn mesa_major_from_driver_info() {
-        assert_eq!(
-            super::mesa_major("Mesa 25.0.7-2~bpo12+1 (LLVM 15.0.6)"),
-            Some(25)
-        );
-        assert_eq!(super::mesa_major("Mesa 22.3.6 (LLVM 15.0.6)"), Some(22));
-        assert_eq!(super::mesa_major("SwiftShader 5.0"), None);
-        assert_eq!(super::mesa_major("Mesa"), None);
-    }
 }
 
 /// Handles of a host engine's Vulkan objects, lent to the engine. The host keeps
@@ -169,131 +112,6 @@ unsafe extern "system" fn debug_callback(
 
 fn env_flag(name: &str) -> bool {
     std::env::var(name).is_ok_and(|v| !v.is_empty() && v != "0")
-}
-
-fn type_rank(t: vk::PhysicalDeviceType) -> u32 {
-    match t {
-        vk::PhysicalDeviceType::DISCRETE_GPU => 0,
-        vk::PhysicalDeviceType::INTEGRATED_GPU => 1,
-        vk::PhysicalDeviceType::VIRTUAL_GPU => 2,
-        vk::PhysicalDeviceType::CPU => 3,
-        _ => 4,
-    }
-}
-
-fn type_name(t: vk::PhysicalDeviceType) -> &'static str {
-    match t {
-        vk::PhysicalDeviceType::DISCRETE_GPU => "discrete GPU",
-        vk::PhysicalDeviceType::INTEGRATED_GPU => "integrated GPU",
-        vk::PhysicalDeviceType::VIRTUAL_GPU => "virtual GPU",
-        vk::PhysicalDeviceType::CPU => "CPU",
-        _ => "other",
-    }
-}
-
-fn version_string(v: u32) -> String {
-    format!(
-        "{}.{}.{}",
-        vk::api_version_major(v),
-        vk::api_version_minor(v),
-        vk::api_version_patch(v)
-    )
-}
-
-fn cstr_field(raw: &[std::ffi::c_char]) -> String {
-    // SAFETY: Vulkan fixed-size strings are NUL-terminated within their array.
-    unsafe { CStr::from_ptr(raw.as_ptr()) }
-        .to_string_lossy()
-        .into_owned()
-}
-
-/// Features a device must support, and which optional ones it has.
-struct Support {
-    missing: Vec<&'static str>,
-    float_atomic_add: bool,
-    full_subgroups: bool,
-}
-
-fn query_support(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> Support {
-    let props = unsafe { instance.get_physical_device_properties(pdev) };
-    let api = props.api_version;
-    let mut missing = Vec::new();
-    if api < vk::API_VERSION_1_2 {
-        missing.push("Vulkan 1.2");
-        return Support {
-            missing,
-            float_atomic_add: false,
-            full_subgroups: false,
-        };
-    }
-    let exts = unsafe { instance.enumerate_device_extension_properties(pdev) }.unwrap_or_default();
-    let has_ext = |name: &CStr| exts.iter().any(|e| e.extension_name_as_c_str() == Ok(name));
-    let has_atomic_float = has_ext(ash::ext::shader_atomic_float::NAME);
-
-    let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
-    let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
-    let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
-    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12);
-    if api >= vk::API_VERSION_1_3 {
-        f2 = f2.push_next(&mut f13);
-    }
-    if has_atomic_float {
-        f2 = f2.push_next(&mut fa);
-    }
-    unsafe { instance.get_physical_device_features2(pdev, &mut f2) };
-    let f10 = f2.features;
-    if f10.shader_int64 == 0 {
-        missing.push("shaderInt64");
-    }
-    if f12.buffer_device_address == 0 {
-        missing.push("bufferDeviceAddress");
-    }
-    if f12.shader_buffer_int64_atomics == 0 {
-        missing.push("shaderBufferInt64Atomics");
-    }
-    let mut sg = vk::PhysicalDeviceSubgroupProperties::default();
-    let mut p2 = vk::PhysicalDeviceProperties2::default().push_next(&mut sg);
-    unsafe { instance.get_physical_device_properties2(pdev, &mut p2) };
-    let need_ops = vk::SubgroupFeatureFlags::BASIC
-        | vk::SubgroupFeatureFlags::BALLOT
-        | vk::SubgroupFeatureFlags::ARITHMETIC
-        | vk::SubgroupFeatureFlags::VOTE
-        | vk::SubgroupFeatureFlags::SHUFFLE;
-    if !sg.supported_stages.contains(vk::ShaderStageFlags::COMPUTE)
-        || !sg.supported_operations.contains(need_ops)
-    {
-        missing.push("subgroup basic/vote/ballot/arithmetic/shuffle in compute");
-    }
-    if !(8..=128).contains(&sg.subgroup_size) {
-        missing.push("subgroup size in 8..=128");
-    }
-    if props.limits.timestamp_compute_and_graphics == 0 {
-        missing.push("timestampComputeAndGraphics");
-    }
-    let full_subgroups = api >= vk::API_VERSION_1_3
-        && f13.subgroup_size_control != 0
-        && f13.compute_full_subgroups != 0;
-    let float_atomic_add = has_atomic_float
-        && fa.shader_buffer_float32_atomics != 0
-        && fa.shader_buffer_float32_atomic_add != 0;
-    Support {
-        missing,
-        float_atomic_add,
-        full_subgroups,
-    }
-}
-
-fn compute_queue_family(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> Option<u32> {
-    let fams = unsafe { instance.get_physical_device_queue_family_properties(pdev) };
-    // Prefer a compute queue that also does graphics (the universal queue): it has
-    // timestamps everywhere; any compute queue with timestamps otherwise.
-    let ok = |f: &vk::QueueFamilyProperties| {
-        f.queue_flags.contains(vk::QueueFlags::COMPUTE) && f.timestamp_valid_bits > 0
-    };
-    fams.iter()
-        .position(|f| ok(f) && f.queue_flags.contains(vk::QueueFlags::GRAPHICS))
-        .or_else(|| fams.iter().position(ok))
-        .map(|i| i as u32)
 }
 
 impl Context {

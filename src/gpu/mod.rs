@@ -4,11 +4,13 @@
 
 mod buffer;
 mod context;
+mod device;
 mod kernel;
 pub mod recorder;
 
 pub use buffer::{Buffer, Memory};
-pub use context::{BorrowedHandles, Context, ContextOptions, DeviceInfo};
+pub use context::{BorrowedHandles, Context, ContextOptions};
+pub use device::DeviceInfo;
 pub use kernel::{Kernel, KernelSource};
 pub use recorder::Timestamps;
 

@@ -6,7 +6,7 @@
 pub(crate) const COUNTER_WORDS: usize = crate::gpu::glsl::CTR_WORDS as usize;
 
 /// Work done by the tile walks of the frames (and backwards) recorded with counters on
-/// ([`Renderer::set_counters`]): one walk's totals over all tiles and chunks.
+/// ([`Renderer::set_counters`](super::Renderer::set_counters)): one walk's totals over all tiles and chunks.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct WalkCounters {
     /// Subgroup loop trips over entries (a subgroup visiting one entry).

@@ -1,7 +1,7 @@
 //! The training backward (paper §3.2; DESIGN §4): from the loss gradients of a rendered
 //! frame to the gradients of every model parameter.
 //!
-//! Recorded after the frame (same [`Renderer`], nothing recorded in between):
+//! Recorded after the frame (same [`Renderer`](crate::raster::Renderer), nothing recorded in between):
 //! **grad_prepare** (output → render resolution: transposed downsample and finalize) →
 //! **backward** chunks, last first (workgroup per tile, back to front; subgroup
 //! reductions, one float atomic per subgroup and voxel) → **voxel_backward** (SH

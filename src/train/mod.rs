@@ -1,11 +1,11 @@
 //! Training: backward pass, losses, optimiser, adaptive layout and the training loop
 //! (paper §3.2).
 
-pub mod adapt_stats;
+mod adapt_step;
 pub mod backward;
 pub mod config;
+mod init;
 pub mod loss;
 pub mod optim;
 pub mod ssim;
-pub mod topology;
 pub mod trainer;

@@ -7,7 +7,7 @@
 //! at `f32::MAX`), and a zero first moment gives an update of exactly 0. Non-finite
 //! gradients or parameters raise a sticky flag ([`Adam::read_nonfinite`]).
 //!
-//! TV: L_tv = Σ_voxels Σ_{12 cube edges (a, b)} (geo[a] − geo[b])²; [`Tv::record`] adds
+//! TV: L_tv = Σ_voxels Σ over the 12 cube edges (a, b) of `(geo[a] − geo[b])²`; [`Tv::record`] adds
 //! `weight · ∂L_tv/∂geo` into a gradient buffer and leaves per-workgroup partial sums of
 //! L_tv (unweighted) for [`Tv::read_value`].
 

@@ -35,7 +35,7 @@
 //! # Precision
 //! Against the f64 reference, textured images agree to ~1e-7 in value and ~2e-6 of the
 //! largest gradient component. Flat regions are worse, as in any f32 evaluation of this
-//! formula (the reference's PyTorch one included): σ² = E[x²] − μ² and σxy cancel to
+//! formula (the reference's PyTorch one included): σ² = `E[x²]` − μ² and σxy cancel to
 //! ~0 with an f32 rounding of ~ε·μ², which is then divided by C2 = 9e-4, so a constant
 //! pair (0.9, 1.0) is off by ~1e-4 per pixel. Use [`crate::eval::ssim::ssim`] for reported metrics.
 //!
@@ -175,7 +175,7 @@ impl Ssim {
         Ok(())
     }
 
-    /// Records into `cmd`: SSIM of x vs y (device addresses of planar [3][H][W] f32) and
+    /// Records into `cmd`: SSIM of x vs y (device addresses of planar `[3][H][W]` f32) and
     /// ADDS `weight * dSSIM/dx` into `grad` (device address, same layout). Ends with a
     /// barrier (compute → compute/indirect/transfer, and compute → host for the value).
     ///

@@ -1,7 +1,9 @@
 //! The training loop (paper §3.2; DESIGN §4): one random training view per iteration,
 //! forward → losses → backward → Adam, and at the schedule's adaptive steps the layout
-//! changes (paper §3.2.2): prune voxels whose max blend weight over every training view
-//! is below a ramped threshold, subdivide the top few percent by accumulated priority.
+//! changes (paper §3.2.2; `adapt_step.rs`, kernels and topology in [`crate::adapt`]):
+//! prune voxels whose max blend weight over every training view is below a ramped
+//! threshold, subdivide the top few percent by accumulated priority. Setting a run up
+//! (starting grid, budget, [`Trainer::new`]) is in `init.rs`.
 //!
 //! An iteration is two submissions: the frame (which may grow its buffers and re-render,
 //! so its completeness is known before any gradient is taken) and everything after it.
@@ -11,25 +13,24 @@
 //! average them like their densities. A reset would hand every new parameter a first
 //! step of ≈ lr·(1−β₁)/√(1−β₂) = 9·lr (zero moments, bias correction of a late step).
 
-use ash::vk;
-use rand::{Rng, SeedableRng};
+use rand::Rng;
 
-use std::time::Instant;
-
-use super::adapt_stats::StatsPass;
 use super::backward::{Backward, EntryLosses, Gradients};
-use super::config::{AdaptStep, Layout, Schedule, TrainConfig};
+use super::config::{Schedule, TrainConfig};
+use super::init::Moments;
 use super::loss::PixelLoss;
 use super::optim::{Adam, AdamConfig, Tv};
 use super::ssim::Ssim;
-use super::topology::Topology;
-use crate::data::blender::Dataset;
+use crate::adapt::stats::StatsPass;
+use crate::adapt::topology::Topology;
 use crate::data::Camera;
-use crate::gpu::{recorder, Buffer, Context, Memory, Timestamps};
+use crate::gpu::{recorder, Buffer, Context, Timestamps};
 use crate::raster::{RenderOptions, Renderer};
-use crate::scene::SceneGpu;
-use crate::scene::{octpath_from_ijk, Scene};
+use crate::scene::{Scene, SceneGpu};
 use crate::{Error, Result};
+
+pub use super::init::{bytes_per_voxel, uniform_grid, voxel_budget};
+pub use crate::adapt::{visible_only, AdaptReport};
 
 /// Loss values of one iteration (read back only on logged iterations).
 #[derive(Clone, Copy, Debug, Default, serde::Serialize)]
@@ -59,326 +60,41 @@ pub struct StepInfo {
     pub adapt: Option<AdaptReport>,
 }
 
-/// What one adaptive step did (a line of stats.jsonl).
-#[derive(Clone, Debug, Default, serde::Serialize)]
-pub struct AdaptReport {
-    /// After this many completed iterations.
-    pub iter: u32,
-    pub voxels_before: u32,
-    /// Max-blend-weight threshold (None: this step did not prune).
-    pub prune_below: Option<f32>,
-    pub pruned: u32,
-    /// Voxels replaced by their 8 children.
-    pub subdivided: u32,
-    /// Subdivision candidates the budget or the layout's rules left out.
-    pub subdivide_skipped: u32,
-    pub voxels: u32,
-    pub grid_points: u32,
-    pub max_level: u32,
-    /// The voxel budget in force.
-    pub budget: u64,
-    /// Whether the budget cut this step's subdivision short.
-    pub budget_reached: bool,
-    /// Device memory allocated after the step (bytes).
-    pub device_memory: u64,
-    pub seconds: f64,
-    /// Of `seconds`: the statistics pass (every training view rendered).
-    pub stats_seconds: f64,
-    /// Of `seconds`: selection and topology change (host round trip, reinstall).
-    pub topology_seconds: f64,
-}
-
-/// Adam moments of one parameter group.
-struct Moments {
-    m: Buffer,
-    v: Buffer,
-}
-
-impl Moments {
-    fn new(ctx: &Context, name: &str, count: u64) -> Result<Moments> {
-        let bytes = count.max(1) * 4;
-        let m = ctx.buffer(&format!("{name}.adam-m"), bytes, Memory::Device)?;
-        let v = ctx.buffer(&format!("{name}.adam-v"), bytes, Memory::Device)?;
-        ctx.submit_and_wait(|cmd| {
-            recorder::fill(ctx, cmd, &m, 0, vk::WHOLE_SIZE, 0);
-            recorder::fill(ctx, cmd, &v, 0, vk::WHOLE_SIZE, 0);
-            Ok(())
-        })?;
-        Ok(Moments { m, v })
-    }
-}
-
-/// A uniform grid of `8^level` voxels filling the box (before visibility pruning).
-pub fn uniform_grid(cfg: &TrainConfig) -> Result<Scene> {
-    let l = cfg.grid_level;
-    let n = 1u32 << l;
-    let mut paths = Vec::with_capacity((n as usize).pow(3));
-    for i in 0..n {
-        for j in 0..n {
-            for k in 0..n {
-                paths.push(octpath_from_ijk([i, j, k], l));
-            }
-        }
-    }
-    paths.sort_unstable();
-    let levels = vec![l as u8; paths.len()];
-    let mut scene = Scene::from_voxels(
-        cfg.center,
-        cfg.extent,
-        cfg.sh_degree,
-        paths,
-        levels,
-        cfg.geo_init,
-    )?;
-    scene.background = cfg.background;
-    scene.supersample = cfg.ss;
-    let dc = (cfg.sh0_init - 0.5) / 0.282_094_8;
-    scene.sh0.iter_mut().for_each(|c| *c = [dc; 3]);
-    Ok(scene)
-}
-
-/// Removes the voxels no training camera sees (paper §3.2.1, bounded scenes): a voxel
-/// is seen when a view's preprocess gives it at least one tile entry.
-pub fn visible_only(
-    ctx: &Context,
-    scene: Scene,
-    cams: &[Camera],
-    renderer: &mut Renderer,
-    stats: &mut StatsPass,
-    topology: &mut Topology,
-) -> Result<Scene> {
-    let gpu = SceneGpu::upload(ctx, &scene)?;
-    stats.begin(gpu.voxels)?;
-    for cam in cams {
-        stats.add_view_intervals(renderer, &gpu, cam)?;
-    }
-    drop(gpu);
-    let keep: Vec<bool> = stats
-        .read()?
-        .min_interval
-        .iter()
-        .map(|v| v.is_finite())
-        .collect();
-    if !keep.contains(&true) {
-        return Err(Error::Invalid(
-            "no training camera sees any voxel of the scene box: check the config's \
-             center/extent against the cameras"
-                .into(),
-        ));
-    }
-    if !keep.contains(&false) {
-        return Ok(scene);
-    }
-    let split = vec![false; keep.len()];
-    Ok(topology.apply(&scene, None, &keep, &split)?.0)
-}
-
-/// Refuses, before building it, a uniform grid whose largest per-voxel buffer (the
-/// higher-order SH coefficients, or the 8 corner indices at degree 0) exceeds the
-/// device's allocation limit.
-fn check_grid_fits(ctx: &Context, cfg: &TrainConfig) -> Result<()> {
-    let voxels = 1u64 << (3 * cfg.grid_level);
-    let per_voxel = (crate::scene::sh_coeffs(cfg.sh_degree) as u64 - 1) * 12;
-    let largest = voxels * per_voxel.max(32);
-    let limit = ctx.info().max_memory_allocation_size;
-    if limit > 0 && largest > limit {
-        return Err(Error::Capacity(format!(
-            "a level-{} uniform grid has {voxels} voxels: its largest buffer ({:.1} GiB) \
-             exceeds this device's {:.1} GiB allocation limit. Use --set grid_level={} (or \
-             a lower sh_degree)",
-            cfg.grid_level,
-            largest as f64 / (1u64 << 30) as f64,
-            limit as f64 / (1u64 << 30) as f64,
-            cfg.grid_level - 1
-        )));
-    }
-    Ok(())
-}
-
-/// Device bytes one voxel costs while training at SH degree `sh_degree`: parameters,
-/// gradients and Adam moments (sh0 + shs), ~2 grid points (key, density, gradient,
-/// moments), the renderer's per-voxel frame data, the adaptive statistics, and the
-/// transient candidate corners of a layout change (8 per voxel, sorted with scratch).
-pub fn bytes_per_voxel(sh_degree: u32) -> u64 {
-    let sh = 3 * crate::scene::sh_coeffs(sh_degree) as u64 * 4; // sh0 + shs, bytes
-    let layout = 8 + 4 + 32; // octpath, level, corners
-    let params = sh * 3 + 4; // values, gradients, priority
-    let adam = sh * 2;
-    let grid = 2 * (8 + 4 + 4 + 8);
-    let frame = 92 + 8;
-    let candidates = 8 * (8 * 2 + 4 * 2 + 12 + 4 + 8);
-    layout + params + adam + grid + frame + candidates
-}
-
-/// The voxel budget: `max_voxels` when set, else what fits in half of the device's
-/// memory (the rest is left to the frame's entry lists and images), capped by the
-/// largest per-voxel buffer (higher-order SH) fitting one allocation and by the 29-bit
-/// voxel ids.
-pub fn voxel_budget(ctx: &Context, cfg: &TrainConfig) -> u64 {
-    if cfg.max_voxels > 0 {
-        return cfg.max_voxels;
-    }
-    let info = ctx.info();
-    let mut budget = info.device_local_heap_bytes / 2 / bytes_per_voxel(cfg.sh_degree);
-    let shs = (crate::scene::sh_coeffs(cfg.sh_degree) as u64 - 1) * 12;
-    let largest = shs.max(8 * 8); // higher-order SH, or 8 candidate keys per voxel
-    if info.max_memory_allocation_size > 0 {
-        budget = budget.min(info.max_memory_allocation_size / largest);
-    }
-    budget.min(crate::scene::MAX_VOXELS as u64)
-}
-
 /// Per-stage timestamps of the last iteration (ms), when enabled.
 pub type StageTimes = Vec<(String, f64)>;
 
 /// The trainer: scene and optimiser state on the device plus the training views.
 pub struct Trainer {
-    ctx: Context,
-    cfg: TrainConfig,
-    schedule: Schedule,
-    host: Scene,
-    scene: SceneGpu,
-    grads: Gradients,
-    mom: [Moments; 3],
-    renderer: Renderer,
-    backward: Backward,
-    ssim: Ssim,
-    adam: Adam,
-    tv: Tv,
-    loss: PixelLoss,
-    gt: Buffer,
-    cams: Vec<Camera>,
-    width: u32,
-    height: u32,
-    rng: rand_pcg::Pcg64,
-    order: Vec<usize>,
-    iter: u32,
-    timing: Option<(Timestamps, Timestamps)>,
-    last_times: StageTimes,
-    stats: StatsPass,
-    topology: Topology,
-    budget: u64,
+    pub(super) ctx: Context,
+    pub(super) cfg: TrainConfig,
+    pub(super) schedule: Schedule,
+    pub(super) host: Scene,
+    pub(super) scene: SceneGpu,
+    pub(super) grads: Gradients,
+    pub(super) mom: [Moments; 3],
+    pub(super) renderer: Renderer,
+    pub(super) backward: Backward,
+    pub(super) ssim: Ssim,
+    pub(super) adam: Adam,
+    pub(super) tv: Tv,
+    pub(super) loss: PixelLoss,
+    pub(super) gt: Buffer,
+    pub(super) cams: Vec<Camera>,
+    pub(super) width: u32,
+    pub(super) height: u32,
+    pub(super) rng: rand_pcg::Pcg64,
+    pub(super) order: Vec<usize>,
+    pub(super) iter: u32,
+    pub(super) timing: Option<(Timestamps, Timestamps)>,
+    pub(super) last_times: StageTimes,
+    pub(super) stats: StatsPass,
+    pub(super) topology: Topology,
+    pub(super) budget: u64,
     /// Whether the budget stopped a subdivision already (logged once).
-    budget_logged: bool,
+    pub(super) budget_logged: bool,
 }
 
 impl Trainer {
-    /// Sets up training on `train` from `init` (or a fresh uniform grid).
-    pub fn new(
-        ctx: &Context,
-        cfg: TrainConfig,
-        train: &Dataset,
-        init: Option<Scene>,
-    ) -> Result<Trainer> {
-        cfg.validate()?;
-        if train.frames.is_empty() {
-            return Err(Error::Invalid(format!(
-                "the {} split has no frames to train on",
-                train.split
-            )));
-        }
-        let mut renderer = Renderer::new(ctx)?;
-        let mut stats = StatsPass::new(ctx)?;
-        let mut topology = Topology::new(ctx)?;
-        let cams = train.cameras();
-        let host = match init {
-            Some(s) => s,
-            None => {
-                check_grid_fits(ctx, &cfg)?;
-                let dense = uniform_grid(&cfg)?;
-                visible_only(ctx, dense, &cams, &mut renderer, &mut stats, &mut topology)?
-            }
-        };
-        host.validate()?;
-        let budget = voxel_budget(ctx, &cfg);
-        if cfg.layout != Layout::Fixed && host.num_voxels() as u64 > budget {
-            return Err(Error::Invalid(format!(
-                "the voxel budget ({budget}) is below the {} voxels the run starts with \
-                 (the level-{} grid's voxels the training views see): no voxel could ever be \
-                 subdivided; raise --max-voxels (set max_voxels=0 for the device's budget), \
-                 lower grid_level, or use layout=fixed",
-                host.num_voxels(),
-                cfg.grid_level
-            )));
-        }
-        let mut scene = SceneGpu::upload(ctx, &host)?;
-        scene.sh_degree = 0;
-        let grads = Gradients::new(ctx, &scene)?;
-        let mom = Self::moments(ctx, &scene, None)?;
-        let (w, h) = (train.width, train.height);
-        let np = (w * h) as usize;
-        let mut planar = vec![0f32; train.frames.len() * 3 * np];
-        for (i, f) in train.frames.iter().enumerate() {
-            if f.rgb.len() != np {
-                return Err(Error::Invalid(format!(
-                    "training image {} has {} pixels, expected {w}×{h}",
-                    f.name,
-                    f.rgb.len()
-                )));
-            }
-            for (p, c) in f.rgb.iter().enumerate() {
-                for ch in 0..3 {
-                    planar[(i * 3 + ch) * np + p] = c[ch];
-                }
-            }
-        }
-        let gt = ctx.buffer_from("train.ground-truth", &planar)?;
-        let float_atomics = std::env::var("SVRASTER_NO_FLOAT_ATOMICS").is_err();
-        let schedule = cfg.schedule();
-        Ok(Trainer {
-            ctx: ctx.clone(),
-            rng: rand_pcg::Pcg64::seed_from_u64(cfg.seed),
-            cfg,
-            schedule,
-            host,
-            scene,
-            grads,
-            mom,
-            renderer,
-            backward: Backward::new(ctx, float_atomics)?,
-            ssim: Ssim::new(ctx)?,
-            adam: Adam::new(ctx)?,
-            tv: Tv::new(ctx, float_atomics)?,
-            loss: PixelLoss::new(ctx)?,
-            gt,
-            cams,
-            width: w,
-            height: h,
-            order: Vec::new(),
-            iter: 0,
-            timing: None,
-            last_times: Vec::new(),
-            stats,
-            topology,
-            budget,
-            budget_logged: false,
-        })
-    }
-
-    /// Adam moments for `scene`'s parameter groups: zero, or `state` (the six arrays of
-    /// [`Trainer::optimizer_state`]).
-    fn moments(
-        ctx: &Context,
-        scene: &SceneGpu,
-        state: Option<&[Vec<f32>]>,
-    ) -> Result<[Moments; 3]> {
-        let n = scene.voxels as u64;
-        let mom = [
-            Moments::new(ctx, "geo", scene.grid_points as u64)?,
-            Moments::new(ctx, "sh0", n * 3)?,
-            Moments::new(ctx, "shs", n * 3 * scene.shs_per_voxel as u64)?,
-        ];
-        if let Some(state) = state {
-            for (i, m) in mom.iter().enumerate() {
-                if !state[2 * i].is_empty() {
-                    ctx.upload(&m.m, 0, &state[2 * i])?;
-                    ctx.upload(&m.v, 0, &state[2 * i + 1])?;
-                }
-            }
-        }
-        Ok(mom)
-    }
-
     pub fn config(&self) -> &TrainConfig {
         &self.cfg
     }
@@ -657,144 +373,6 @@ impl Trainer {
     /// Device memory the engine holds now (bytes).
     pub fn device_memory(&self) -> u64 {
         self.ctx.memory_allocated()
-    }
-
-    /// One adaptive step (paper §3.2.2): statistics over every training view, pruning,
-    /// subdivision within the budget, and the rebuilt device state.
-    pub fn adapt(&mut self, step: AdaptStep) -> Result<AdaptReport> {
-        let t0 = Instant::now();
-        let cfg = self.cfg.clone();
-        let n = self.scene.voxels as usize;
-        self.stats.begin(n as u32)?;
-        for cam in &self.cams {
-            self.stats
-                .add_view(&mut self.renderer, &self.scene, cam, cfg.samples)?;
-        }
-        let vs = self.stats.read()?;
-        let stats_seconds = t0.elapsed().as_secs_f64();
-        self.scene.download_params(&self.ctx, &mut self.host)?;
-        let priority: Vec<f32> = self.ctx.download(&self.grads.priority, 0, n)?;
-        let keep: Vec<bool> = match step.prune_below {
-            Some(t) => vs.max_weight.iter().map(|&w| w >= t).collect(),
-            None => vec![true; n],
-        };
-        let kept = keep.iter().filter(|&&k| k).count();
-        let mut split = vec![false; n];
-        let mut skipped = 0usize;
-        let mut budget_reached = false;
-        if step.subdivide && kept > 0 {
-            let rate = vs.sampling_rate(&self.host);
-            let below_max = |i: usize| (self.host.octlevel[i] as u32) < cfg.max_level;
-            let room = (self.budget.saturating_sub(kept as u64) / 7) as usize;
-            match cfg.layout {
-                Layout::Adaptive => {
-                    // Priority 0 where the sampling-rate guard fails (Eq. 7: too few
-                    // rays see the voxel for its children to be constrained).
-                    let mut cand: Vec<usize> = (0..n)
-                        .filter(|&i| {
-                            keep[i]
-                                && below_max(i)
-                                && rate[i] >= cfg.subdivide_min_rate
-                                && priority[i] > 0.0
-                        })
-                        .collect();
-                    let wanted =
-                        ((kept as f64 * cfg.subdivide_percent).ceil() as usize).min(cand.len());
-                    let take = wanted.min(room);
-                    if take < wanted {
-                        budget_reached = true;
-                        skipped = wanted - take;
-                    }
-                    if take > 0 && take < cand.len() {
-                        cand.select_nth_unstable_by(take - 1, |&a, &b| {
-                            priority[b].total_cmp(&priority[a])
-                        });
-                    }
-                    for &i in cand.iter().take(take) {
-                        split[i] = true;
-                    }
-                }
-                Layout::Uniform => {
-                    // Every voxel below max_level, or none: a partly subdivided layout
-                    // would no longer be the uniform baseline.
-                    let cand: Vec<usize> = (0..n).filter(|&i| keep[i] && below_max(i)).collect();
-                    if cand.len() <= room {
-                        for &i in &cand {
-                            split[i] = true;
-                        }
-                    } else {
-                        budget_reached = true;
-                        skipped = cand.len();
-                    }
-                }
-                Layout::Fixed => {}
-            }
-        }
-        if budget_reached && !self.budget_logged {
-            eprintln!(
-                "\nvoxel budget of {} reached at iteration {}: subdivision stops growing the \
-                 model (raise it with --max-voxels)",
-                self.budget, self.iter
-            );
-            self.budget_logged = true;
-        }
-        let subdivided = split.iter().filter(|&&s| s).count();
-        if kept == 0 {
-            return Err(Error::Invalid(format!(
-                "pruning at iteration {} would remove every voxel (no voxel reached a blend \
-                 weight of {:?} in any training view): the model is empty. Check the scene \
-                 box (center/extent) against the cameras, or lower prune_thres_init",
-                self.iter, step.prune_below
-            )));
-        }
-        if kept < n || subdivided > 0 {
-            let state = self.optimizer_state()?;
-            let (scene, state) = self
-                .topology
-                .apply(&self.host, Some(&state), &keep, &split)?;
-            self.install(scene, state.as_deref())?;
-        } else {
-            let ctx = self.ctx.clone();
-            ctx.submit_and_wait(|cmd| {
-                self.grads.record_clear_priority(&ctx, cmd);
-                Ok(())
-            })?;
-        }
-        Ok(AdaptReport {
-            iter: self.iter,
-            voxels_before: n as u32,
-            prune_below: step.prune_below,
-            pruned: (n - kept) as u32,
-            subdivided: subdivided as u32,
-            subdivide_skipped: skipped as u32,
-            voxels: self.scene.voxels,
-            grid_points: self.scene.grid_points,
-            max_level: self.scene.max_level,
-            budget: self.budget,
-            budget_reached,
-            device_memory: self.ctx.memory_allocated(),
-            seconds: t0.elapsed().as_secs_f64(),
-            stats_seconds,
-            topology_seconds: t0.elapsed().as_secs_f64() - stats_seconds,
-        })
-    }
-
-    /// Replaces the model (new layout) and everything sized by it.
-    fn install(&mut self, scene: Scene, state: Option<&[Vec<f32>]>) -> Result<()> {
-        let degree = self.scene.sh_degree;
-        // Release the old moments first (the largest per-voxel state after the SH).
-        self.mom = [
-            Moments::new(&self.ctx, "geo", 0)?,
-            Moments::new(&self.ctx, "sh0", 0)?,
-            Moments::new(&self.ctx, "shs", 0)?,
-        ];
-        let mut gpu = SceneGpu::upload(&self.ctx, &scene)?;
-        gpu.sh_degree = degree;
-        self.scene = gpu;
-        self.grads = Gradients::new(&self.ctx, &self.scene)?;
-        self.mom = Self::moments(&self.ctx, &self.scene, state)?;
-        self.host = scene;
-        Ok(())
     }
 
     fn read_losses(&self, lambda_dist: f32, lambda_tv: f32) -> Result<StepLosses> {

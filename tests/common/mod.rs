@@ -232,7 +232,7 @@ pub fn scattered_scene(rng: &mut Rng, n: usize, level: u32, degree: u32) -> Scen
 /// Mean PSNR of `scene` over a split at the model's default render options (the metric
 /// every report uses, `svraster::eval::evaluate`).
 #[allow(dead_code)]
-pub fn mean_psnr(ctx: &Context, scene: &Scene, ds: &svraster::data::blender::Dataset) -> f64 {
+pub fn mean_psnr(ctx: &Context, scene: &Scene, ds: &svraster::data::Dataset) -> f64 {
     svraster::eval::evaluate(
         ctx,
         scene,

@@ -52,7 +52,7 @@ use crate::sort::{Count, RadixSort, SortBuffers, Sorted};
 
 /// Adam moments aligned with a scene's parameters: [geo m, geo v, sh0 m, sh0 v, shs m,
 /// shs v], each laid out exactly like the parameter it belongs to (geo per grid point,
-/// sh0 [N][3], shs [N][coeffs][3]).
+/// `sh0 [N][3]`, `shs [N][coeffs][3]`).
 pub type Moments = Vec<Vec<f32>>;
 
 /// Bit of the dedup flags: more than 8 candidates share a grid point.

@@ -1,0 +1,242 @@
+//! Setting a run up: the starting grid (uniform, then only what the training views see),
+//! the voxel budget, the optimiser moments and [`Trainer::new`].
+
+use ash::vk;
+use rand::SeedableRng;
+
+use super::backward::{Backward, Gradients};
+use super::config::{Layout, TrainConfig};
+use super::loss::PixelLoss;
+use super::optim::{Adam, Tv};
+use super::ssim::Ssim;
+use super::trainer::Trainer;
+use crate::adapt::stats::StatsPass;
+use crate::adapt::topology::Topology;
+use crate::adapt::visible_only;
+use crate::data::Dataset;
+use crate::gpu::{recorder, Buffer, Context, Memory};
+use crate::raster::Renderer;
+use crate::scene::{octpath_from_ijk, Scene, SceneGpu};
+use crate::{Error, Result};
+
+/// Adam moments of one parameter group.
+pub(super) struct Moments {
+    pub(super) m: Buffer,
+    pub(super) v: Buffer,
+}
+
+impl Moments {
+    pub(super) fn new(ctx: &Context, name: &str, count: u64) -> Result<Moments> {
+        let bytes = count.max(1) * 4;
+        let m = ctx.buffer(&format!("{name}.adam-m"), bytes, Memory::Device)?;
+        let v = ctx.buffer(&format!("{name}.adam-v"), bytes, Memory::Device)?;
+        ctx.submit_and_wait(|cmd| {
+            recorder::fill(ctx, cmd, &m, 0, vk::WHOLE_SIZE, 0);
+            recorder::fill(ctx, cmd, &v, 0, vk::WHOLE_SIZE, 0);
+            Ok(())
+        })?;
+        Ok(Moments { m, v })
+    }
+}
+
+/// A uniform grid of `8^level` voxels filling the box (before visibility pruning).
+pub fn uniform_grid(cfg: &TrainConfig) -> Result<Scene> {
+    let l = cfg.grid_level;
+    let n = 1u32 << l;
+    let mut paths = Vec::with_capacity((n as usize).pow(3));
+    for i in 0..n {
+        for j in 0..n {
+            for k in 0..n {
+                paths.push(octpath_from_ijk([i, j, k], l));
+            }
+        }
+    }
+    paths.sort_unstable();
+    let levels = vec![l as u8; paths.len()];
+    let mut scene = Scene::from_voxels(
+        cfg.center,
+        cfg.extent,
+        cfg.sh_degree,
+        paths,
+        levels,
+        cfg.geo_init,
+    )?;
+    scene.background = cfg.background;
+    scene.supersample = cfg.ss;
+    let dc = (cfg.sh0_init - 0.5) / 0.282_094_8;
+    scene.sh0.iter_mut().for_each(|c| *c = [dc; 3]);
+    Ok(scene)
+}
+
+/// Refuses, before building it, a uniform grid whose largest per-voxel buffer (the
+/// higher-order SH coefficients, or the 8 corner indices at degree 0) exceeds the
+/// device's allocation limit.
+pub(super) fn check_grid_fits(ctx: &Context, cfg: &TrainConfig) -> Result<()> {
+    let voxels = 1u64 << (3 * cfg.grid_level);
+    let per_voxel = (crate::scene::sh_coeffs(cfg.sh_degree) as u64 - 1) * 12;
+    let largest = voxels * per_voxel.max(32);
+    let limit = ctx.info().max_memory_allocation_size;
+    if limit > 0 && largest > limit {
+        return Err(Error::Capacity(format!(
+            "a level-{} uniform grid has {voxels} voxels: its largest buffer ({:.1} GiB) \
+             exceeds this device's {:.1} GiB allocation limit. Use --set grid_level={} (or \
+             a lower sh_degree)",
+            cfg.grid_level,
+            largest as f64 / (1u64 << 30) as f64,
+            limit as f64 / (1u64 << 30) as f64,
+            cfg.grid_level - 1
+        )));
+    }
+    Ok(())
+}
+
+/// Device bytes one voxel costs while training at SH degree `sh_degree`: parameters,
+/// gradients and Adam moments (sh0 + shs), ~2 grid points (key, density, gradient,
+/// moments), the renderer's per-voxel frame data, the adaptive statistics, and the
+/// transient candidate corners of a layout change (8 per voxel, sorted with scratch).
+pub fn bytes_per_voxel(sh_degree: u32) -> u64 {
+    let sh = 3 * crate::scene::sh_coeffs(sh_degree) as u64 * 4; // sh0 + shs, bytes
+    let layout = 8 + 4 + 32; // octpath, level, corners
+    let params = sh * 3 + 4; // values, gradients, priority
+    let adam = sh * 2;
+    let grid = 2 * (8 + 4 + 4 + 8);
+    let frame = 92 + 8;
+    let candidates = 8 * (8 * 2 + 4 * 2 + 12 + 4 + 8);
+    layout + params + adam + grid + frame + candidates
+}
+
+/// The voxel budget: `max_voxels` when set, else what fits in half of the device's
+/// memory (the rest is left to the frame's entry lists and images), capped by the
+/// largest per-voxel buffer (higher-order SH) fitting one allocation and by the 29-bit
+/// voxel ids.
+pub fn voxel_budget(ctx: &Context, cfg: &TrainConfig) -> u64 {
+    if cfg.max_voxels > 0 {
+        return cfg.max_voxels;
+    }
+    let info = ctx.info();
+    let mut budget = info.device_local_heap_bytes / 2 / bytes_per_voxel(cfg.sh_degree);
+    let shs = (crate::scene::sh_coeffs(cfg.sh_degree) as u64 - 1) * 12;
+    let largest = shs.max(8 * 8); // higher-order SH, or 8 candidate keys per voxel
+    if info.max_memory_allocation_size > 0 {
+        budget = budget.min(info.max_memory_allocation_size / largest);
+    }
+    budget.min(crate::scene::MAX_VOXELS as u64)
+}
+
+impl Trainer {
+    /// Sets up training on `train` from `init` (or a fresh uniform grid).
+    pub fn new(
+        ctx: &Context,
+        cfg: TrainConfig,
+        train: &Dataset,
+        init: Option<Scene>,
+    ) -> Result<Trainer> {
+        cfg.validate()?;
+        if train.frames.is_empty() {
+            return Err(Error::Invalid(format!(
+                "the {} split has no frames to train on",
+                train.split
+            )));
+        }
+        let mut renderer = Renderer::new(ctx)?;
+        let mut stats = StatsPass::new(ctx)?;
+        let mut topology = Topology::new(ctx)?;
+        let cams = train.cameras();
+        let host = match init {
+            Some(s) => s,
+            None => {
+                check_grid_fits(ctx, &cfg)?;
+                let dense = uniform_grid(&cfg)?;
+                visible_only(ctx, dense, &cams, &mut renderer, &mut stats, &mut topology)?
+            }
+        };
+        host.validate()?;
+        let budget = voxel_budget(ctx, &cfg);
+        if cfg.layout != Layout::Fixed && host.num_voxels() as u64 > budget {
+            return Err(Error::Invalid(format!(
+                "the voxel budget ({budget}) is below the {} voxels the run starts with \
+                 (the level-{} grid's voxels the training views see): no voxel could ever be \
+                 subdivided; raise --max-voxels (set max_voxels=0 for the device's budget), \
+                 lower grid_level, or use layout=fixed",
+                host.num_voxels(),
+                cfg.grid_level
+            )));
+        }
+        let mut scene = SceneGpu::upload(ctx, &host)?;
+        scene.sh_degree = 0;
+        let grads = Gradients::new(ctx, &scene)?;
+        let mom = Self::moments(ctx, &scene, None)?;
+        let (w, h) = (train.width, train.height);
+        let np = (w * h) as usize;
+        let mut planar = vec![0f32; train.frames.len() * 3 * np];
+        for (i, f) in train.frames.iter().enumerate() {
+            if f.rgb.len() != np {
+                return Err(Error::Invalid(format!(
+                    "training image {} has {} pixels, expected {w}×{h}",
+                    f.name,
+                    f.rgb.len()
+                )));
+            }
+            for (p, c) in f.rgb.iter().enumerate() {
+                for ch in 0..3 {
+                    planar[(i * 3 + ch) * np + p] = c[ch];
+                }
+            }
+        }
+        let gt = ctx.buffer_from("train.ground-truth", &planar)?;
+        let float_atomics = std::env::var("SVRASTER_NO_FLOAT_ATOMICS").is_err();
+        let schedule = cfg.schedule();
+        Ok(Trainer {
+            ctx: ctx.clone(),
+            rng: rand_pcg::Pcg64::seed_from_u64(cfg.seed),
+            cfg,
+            schedule,
+            host,
+            scene,
+            grads,
+            mom,
+            renderer,
+            backward: Backward::new(ctx, float_atomics)?,
+            ssim: Ssim::new(ctx)?,
+            adam: Adam::new(ctx)?,
+            tv: Tv::new(ctx, float_atomics)?,
+            loss: PixelLoss::new(ctx)?,
+            gt,
+            cams,
+            width: w,
+            height: h,
+            order: Vec::new(),
+            iter: 0,
+            timing: None,
+            last_times: Vec::new(),
+            stats,
+            topology,
+            budget,
+            budget_logged: false,
+        })
+    }
+
+    /// Adam moments for `scene`'s parameter groups: zero, or `state` (the six arrays of
+    /// [`Trainer::optimizer_state`]).
+    pub(super) fn moments(
+        ctx: &Context,
+        scene: &SceneGpu,
+        state: Option<&[Vec<f32>]>,
+    ) -> Result<[Moments; 3]> {
+        let n = scene.voxels as u64;
+        let mom = [
+            Moments::new(ctx, "geo", scene.grid_points as u64)?,
+            Moments::new(ctx, "sh0", n * 3)?,
+            Moments::new(ctx, "shs", n * 3 * scene.shs_per_voxel as u64)?,
+        ];
+        if let Some(state) = state {
+            for (i, m) in mom.iter().enumerate() {
+                if !state[2 * i].is_empty() {
+                    ctx.upload(&m.m, 0, &state[2 * i])?;
+                    ctx.upload(&m.v, 0, &state[2 * i + 1])?;
+                }
+            }
+        }
+        Ok(mom)
+    }
+}
