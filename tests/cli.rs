@@ -44,7 +44,7 @@ fn demo_then_render_and_bench() {
         "config.json",
         "stats.jsonl",
         "model.safetensors",
-        "optimizer.bin",
+        "optimizer.safetensors",
     ] {
         assert!(dir.join("run").join(f).is_file(), "missing run/{f}");
     }
@@ -250,7 +250,7 @@ fn train_interrupt_resume_eval_and_bench() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(130), "{err}");
     assert!(err.contains("--resume"), "{err}");
-    assert!(run.join("model.safetensors").is_file() && run.join("optimizer.bin").is_file());
+    assert!(run.join("model.safetensors").is_file() && run.join("optimizer.safetensors").is_file());
     let cfg: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
     assert_eq!(cfg["config"]["iters"], 400);
@@ -422,9 +422,20 @@ fn train_rejects_bad_input_with_one_clear_error() {
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("config.json"), "{\"config\": {}}").unwrap();
     std::fs::write(out.join("model.safetensors"), b"junk").unwrap();
-    std::fs::write(out.join("optimizer.bin"), b"SVRVKOPTjunk").unwrap();
+    std::fs::write(out.join("optimizer.safetensors"), b"junk").unwrap();
     let (ok, _, err) = svraster(&["train", d, "--out", o, "--resume"]);
-    assert!(!ok && err.contains("optimizer.bin"), "{err}");
+    assert!(
+        !ok && err.contains("optimizer.safetensors") && err.contains("corrupt"),
+        "{err}"
+    );
+    // A run directory of an older version (optimizer.bin) is refused with what to do.
+    std::fs::remove_file(out.join("optimizer.safetensors")).unwrap();
+    std::fs::write(out.join("optimizer.bin"), b"SVRVKOPT").unwrap();
+    let (ok, _, err) = svraster(&["train", d, "--out", o, "--resume"]);
+    assert!(
+        !ok && err.contains("cannot resume a run from an older version"),
+        "{err}"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }
 
@@ -603,10 +614,16 @@ fn set_run_iters(run: &std::path::Path, iters: u32) {
     std::fs::write(&p, serde_json::to_string_pretty(&v).unwrap()).unwrap();
 }
 
-/// The iteration a run's optimizer.bin holds (bytes 8..16).
+/// The iteration a run's optimizer.safetensors holds (its `iteration` metadata).
 fn checkpoint_iter(run: &std::path::Path) -> u64 {
-    let b = std::fs::read(run.join("optimizer.bin")).unwrap();
-    u64::from_le_bytes(b[8..16].try_into().unwrap())
+    let b = std::fs::read(run.join("optimizer.safetensors")).unwrap();
+    let n = u64::from_le_bytes(b[..8].try_into().unwrap()) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&b[8..8 + n]).unwrap();
+    header["__metadata__"]["iteration"]
+        .as_str()
+        .unwrap()
+        .parse()
+        .unwrap()
 }
 
 /// `--resume` continues the same run (its data, downscale and preset) and refuses
@@ -667,7 +684,7 @@ fn resume_is_the_same_run_and_checkpoints_are_atomic() {
     // directory; on a full disk it is ENOSPC) fails the run with a clear error and leaves
     // the previous pair as it was.
     set_run_iters(&run, 40);
-    let blocker = run.join("optimizer.bin.tmp");
+    let blocker = run.join("optimizer.safetensors.tmp");
     std::fs::create_dir(&blocker).unwrap();
     let model_before = std::fs::read(run.join("model.safetensors")).unwrap();
     let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);

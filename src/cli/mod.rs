@@ -68,7 +68,7 @@ enum Command {
     Train {
         /// Dataset directory (transforms_train.json + images).
         data: PathBuf,
-        /// Run directory: config.json, stats.jsonl, model.safetensors, optimizer.bin.
+        /// Run directory: config.json, stats.jsonl, model.safetensors, optimizer.safetensors.
         #[arg(long)]
         out: PathBuf,
         /// Iterations (default 20 000; every milestone scales with it).

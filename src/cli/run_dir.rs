@@ -1,5 +1,5 @@
 //! The run directory of `svraster train`: its lock, the checkpoint pair
-//! (model.safetensors + optimizer.bin) written so that a failure never loses the last
+//! (model.safetensors + optimizer.safetensors) written so that a failure never loses the last
 //! good one, the log truncation on resume, and the stop signals.
 
 use std::path::Path;
@@ -60,6 +60,9 @@ pub(super) fn lock_run(run: &Path) -> anyhow::Result<std::fs::File> {
     }
 }
 
+use std::collections::HashMap;
+
+use safetensors::{tensor::TensorView, Dtype, SafeTensors};
 use svraster::fsio::{sync_dir, tmp_path, write_synced};
 
 /// Writes `bytes` to `path` atomically ([`svraster::fsio::write_atomic`]).
@@ -76,10 +79,43 @@ pub(super) fn fnv64(bytes: &[u8]) -> u64 {
     h
 }
 
-pub(super) const OPT_MAGIC: &[u8; 8] = b"SVRVKOPT";
+/// The optimizer state's file in a run directory: a safetensors file holding the Adam
+/// moments (`geo.m`, `geo.v`, `sh0.m`, `sh0.v`, `shs.m`, `shs.v`, F32, one dimension) with
+/// `format`, `iteration` and `model_fnv64` (hash of the model file it belongs to) in its
+/// metadata.
+pub(super) const OPT_FILE: &str = "optimizer.safetensors";
+/// The optimizer state's file of versions before safetensors (not resumable).
+const OLD_OPT_FILE: &str = "optimizer.bin";
+const OPT_FORMAT: &str = "svraster-vk-optimizer/1";
+const OPT_TENSORS: [&str; 6] = ["geo.m", "geo.v", "sh0.m", "sh0.v", "shs.m", "shs.v"];
 
-/// Writes the checkpoint pair model.safetensors + optimizer.bin (iteration, hash of the
-/// model file, Adam moments) so that a failure at any point leaves a resumable pair: both
+/// The optimizer file's bytes: `state` (in [`OPT_TENSORS`] order) after `iter`
+/// iterations, for the model file `model`.
+fn optimizer_bytes(iter: u32, model: &[u8], state: &[Vec<f32>]) -> anyhow::Result<Vec<u8>> {
+    anyhow::ensure!(
+        state.len() == OPT_TENSORS.len(),
+        "optimizer state of {} groups",
+        state.len()
+    );
+    let bytes: Vec<Vec<u8>> = state
+        .iter()
+        .map(|s| s.iter().flat_map(|v| v.to_le_bytes()).collect())
+        .collect();
+    let views = OPT_TENSORS
+        .iter()
+        .zip(&bytes)
+        .map(|(name, b)| Ok((*name, TensorView::new(Dtype::F32, vec![b.len() / 4], b)?)))
+        .collect::<Result<Vec<_>, safetensors::SafeTensorError>>()?;
+    let meta = HashMap::from([
+        ("format".to_string(), OPT_FORMAT.to_string()),
+        ("iteration".to_string(), iter.to_string()),
+        ("model_fnv64".to_string(), format!("{:016x}", fnv64(model))),
+    ]);
+    Ok(safetensors::serialize(views, Some(meta))?)
+}
+
+/// Writes the checkpoint pair model.safetensors + optimizer.safetensors (Adam moments,
+/// iteration, hash of the model file) so that a failure at any point leaves a resumable pair: both
 /// are written and flushed as `.tmp` files first (a full disk fails here, and the
 /// previous pair stays as it was), then renamed, optimizer first. A crash between the two
 /// renames leaves the new optimizer state beside `model.safetensors.tmp`, which
@@ -88,17 +124,9 @@ pub(super) fn save_run(run: &Path, trainer: &mut Trainer) -> anyhow::Result<()> 
     let scene = trainer.scene()?;
     let model = checkpoint::to_bytes(&scene)?;
     let state = trainer.optimizer_state()?;
-    let mut opt = Vec::new();
-    opt.extend_from_slice(OPT_MAGIC);
-    opt.extend_from_slice(&(trainer.iter() as u64).to_le_bytes());
-    opt.extend_from_slice(&fnv64(&model).to_le_bytes());
-    opt.extend_from_slice(&(state.len() as u64).to_le_bytes());
-    for s in &state {
-        opt.extend_from_slice(&(s.len() as u64).to_le_bytes());
-        opt.extend_from_slice(bytemuck::cast_slice(s));
-    }
+    let opt = optimizer_bytes(trainer.iter(), &model, &state)?;
     let model_path = run.join("model.safetensors");
-    let opt_path = run.join("optimizer.bin");
+    let opt_path = run.join(OPT_FILE);
     let (model_tmp, opt_tmp) = (tmp_path(&model_path), tmp_path(&opt_path));
     let written = write_synced(&model_tmp, &model).and_then(|()| write_synced(&opt_tmp, &opt));
     if let Err(e) = written {
@@ -121,7 +149,16 @@ pub(super) fn save_run(run: &Path, trainer: &mut Trainer) -> anyhow::Result<()> 
 /// completing a save that stopped between its two renames (see [`save_run`]).
 pub(super) fn load_pair(run: &Path) -> anyhow::Result<(Vec<u8>, u32, Vec<Vec<f32>>)> {
     let model_path = run.join("model.safetensors");
-    let (iter, hash, state) = load_optimizer(&run.join("optimizer.bin"))?;
+    let opt_path = run.join(OPT_FILE);
+    if !opt_path.exists() && run.join(OLD_OPT_FILE).exists() {
+        bail!(
+            "cannot resume a run from an older version: {} holds {OLD_OPT_FILE}, whose \
+             format this version no longer reads; start a new run (its model.safetensors \
+             still evaluates and renders)",
+            run.display()
+        );
+    }
+    let (iter, hash, state) = load_optimizer(&opt_path)?;
     let model = std::fs::read(&model_path)
         .with_context(|| format!("cannot resume: cannot read {}", model_path.display()))?;
     if fnv64(&model) == hash {
@@ -137,7 +174,7 @@ pub(super) fn load_pair(run: &Path) -> anyhow::Result<(Vec<u8>, u32, Vec<Vec<f32
         }
     }
     bail!(
-        "{} and optimizer.bin are from different iterations; cannot resume safely",
+        "{} and {OPT_FILE} are from different iterations; cannot resume safely",
         model_path.display()
     )
 }
@@ -167,45 +204,103 @@ pub(super) fn truncate_stats(run: &Path, iter: u32) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Reads optimizer.bin: (iteration, model hash, moments).
+/// Reads the optimizer file: (iteration, model hash, moments).
 pub(super) fn load_optimizer(path: &Path) -> anyhow::Result<(u32, u64, Vec<Vec<f32>>)> {
     let b = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let corrupt = || anyhow::anyhow!("{} is corrupt or truncated", path.display());
-    let u64_at = |o: usize| -> anyhow::Result<u64> {
-        Ok(u64::from_le_bytes(
-            b.get(o..o + 8)
-                .ok_or_else(corrupt)?
-                .try_into()
-                .expect("8 bytes"),
-        ))
+    let bad = |what: String| {
+        anyhow::anyhow!(
+            "{} is corrupt ({what}); resume from an intact run or start a new one",
+            path.display()
+        )
     };
-    if b.get(..8) != Some(OPT_MAGIC.as_slice()) {
-        bail!("{} is not an svraster optimizer state", path.display());
+    let (_, header) =
+        SafeTensors::read_metadata(&b).map_err(|e| bad(format!("not a safetensors file: {e}")))?;
+    let meta = header.metadata().clone().unwrap_or_default();
+    let get = |k: &str| {
+        meta.get(k)
+            .ok_or_else(|| bad(format!("metadata `{k}` missing")))
+    };
+    if get("format")? != OPT_FORMAT {
+        return Err(bad(format!(
+            "format `{}`, not `{OPT_FORMAT}`",
+            get("format")?
+        )));
     }
-    let iter = u64_at(8)?;
-    let hash = u64_at(16)?;
-    let n = u64_at(24)?;
-    if n != 6 || iter > u32::MAX as u64 {
-        return Err(corrupt());
+    let iter: u32 = get("iteration")?
+        .parse()
+        .map_err(|_| bad("`iteration` is not an iteration count".into()))?;
+    let hash = u64::from_str_radix(get("model_fnv64")?, 16)
+        .map_err(|_| bad("`model_fnv64` is not a hex hash".into()))?;
+    let tensors =
+        SafeTensors::deserialize(&b).map_err(|e| bad(format!("not a safetensors file: {e}")))?;
+    if tensors.len() != OPT_TENSORS.len() {
+        return Err(bad(format!(
+            "{} tensors, not {}",
+            tensors.len(),
+            OPT_TENSORS.len()
+        )));
     }
-    let mut o = 32;
     let mut out = Vec::new();
-    for _ in 0..n {
-        let len = u64_at(o)? as usize;
-        o += 8;
-        let bytes = b
-            .get(o..o + len.checked_mul(4).ok_or_else(corrupt)?)
-            .ok_or_else(corrupt)?;
+    for name in OPT_TENSORS {
+        let t = tensors
+            .tensor(name)
+            .map_err(|_| bad(format!("tensor `{name}` missing")))?;
+        if t.dtype() != Dtype::F32 || t.shape().len() != 1 {
+            return Err(bad(format!("tensor `{name}` is not a 1-D F32 tensor")));
+        }
         out.push(
-            bytes
+            t.data()
                 .chunks_exact(4)
                 .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
                 .collect(),
         );
-        o += len * 4;
     }
-    if o != b.len() {
-        return Err(corrupt());
+    Ok((iter, hash, out))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn optimizer_state_round_trips_and_bad_files_are_named() {
+        let dir = std::env::temp_dir().join(format!("svraster-opt-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let state: Vec<Vec<f32>> = (0..6)
+            .map(|g| (0..g * 3).map(|i| i as f32 * 0.5 - 1e-30).collect())
+            .collect();
+        let model = b"model bytes".to_vec();
+        let path = dir.join(OPT_FILE);
+        std::fs::write(&path, optimizer_bytes(1234, &model, &state).unwrap()).unwrap();
+        let (iter, hash, back) = load_optimizer(&path).unwrap();
+        assert_eq!((iter, hash), (1234, fnv64(&model)));
+        assert_eq!(back, state); // bit-exact, empty groups included
+
+        // Another format, a missing tensor, junk: each a named error.
+        let other = |meta: HashMap<String, String>, names: &[&str]| {
+            let bytes: Vec<u8> = vec![0; 4];
+            let views: Vec<_> = names
+                .iter()
+                .map(|n| (*n, TensorView::new(Dtype::F32, vec![1], &bytes).unwrap()))
+                .collect();
+            safetensors::serialize(views, Some(meta)).unwrap()
+        };
+        let meta = |format: &str| {
+            HashMap::from([
+                ("format".to_string(), format.to_string()),
+                ("iteration".to_string(), "1".to_string()),
+                ("model_fnv64".to_string(), "00ff".to_string()),
+            ])
+        };
+        for (bytes, want) in [
+            (other(meta("something-else/1"), &OPT_TENSORS), "format"),
+            (other(meta(OPT_FORMAT), &OPT_TENSORS[..5]), "5 tensors"),
+            (b"junk".to_vec(), "not a safetensors file"),
+        ] {
+            std::fs::write(&path, bytes).unwrap();
+            let e = format!("{:#}", load_optimizer(&path).unwrap_err());
+            assert!(e.contains(OPT_FILE) && e.contains(want), "{e}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
     }
-    Ok((iter as u32, hash, out))
 }
