@@ -491,6 +491,8 @@ fn constants_module(glsl: &Path, headers: &[&PathBuf]) -> String {
 ///   pass only); `_counters` also counts the walk's work (`bench --json`).
 /// - `train/backward_k{K}[_cas][_counters]`: its backward; `_cas` adds floats with a
 ///   compare-and-swap loop (devices without float atomics).
+/// - `train/tv[_cas]`, `train/voxel_backward[_cas]`: TV and the per-voxel backward, with
+///   native float atomic adds or (`_cas`) a compare-and-swap loop.
 fn variants() -> Vec<Variant> {
     variant_table()
 }
@@ -500,6 +502,18 @@ type Variant = (String, &'static str, Vec<(&'static str, String)>);
 
 fn variant_table() -> Vec<Variant> {
     let mut v = Vec::new();
+    // Float adds: native atomics (VK_EXT_shader_atomic_float) or a CAS loop (any device).
+    for (body, name) in [
+        ("tv.glsl", "train/tv"),
+        ("voxel_backward.glsl", "train/voxel_backward"),
+    ] {
+        v.push((
+            name.to_string(),
+            body,
+            vec![("FLOAT_ATOMICS", "1".to_string())],
+        ));
+        v.push((format!("{name}_cas"), body, vec![]));
+    }
     for k in 1..=3 {
         for (suffix, mode) in [
             ("", None),

@@ -1,12 +1,18 @@
 //! svraster: sparse-voxel radiance fields (SVRaster) on raw Vulkan compute.
 //!
 //! - [`gpu`]: the Vulkan layer (owned or borrowed device, buffers, kernels, timestamps).
-//! - [`sort`]: onesweep radix sort of u64 keys with u32 values, and the u32 prefix scan.
-//! - [`scene`]: the sparse-voxel model and its checkpoint format.
-//! - [`data`]: cameras and datasets.
+//! - [`mod@sort`], [`scan`]: onesweep radix sort of u64 keys with u32 values; u32 prefix scan.
+//! - [`scene`]: the sparse-voxel model, its checkpoint format and its device copy.
+//! - [`camera`]: pinhole cameras; [`data`]: datasets (Blender/NeRF-synthetic, the demo).
+//! - [`raster`]: the forward rasterizer (record into any command buffer).
+//! - [`train`]: losses, backward, Adam and the training loop; [`adapt`]: pruning and
+//!   subdivision of the voxel layout.
 //! - [`eval`]: PSNR, SSIM and model evaluation (the numbers every report quotes).
+//!
+//! The types most programs need are re-exported here.
 
 pub mod adapt;
+pub mod camera;
 pub mod data;
 pub mod error;
 pub mod eval;
@@ -19,4 +25,21 @@ pub mod scene;
 pub mod sort;
 pub mod train;
 
+/// The pinhole camera a frame is rendered from.
+pub use camera::Camera;
+/// The errors of this crate and its `Result`.
 pub use error::{Error, Result};
+/// The Vulkan device the engine runs on (owned, or borrowed from a host engine).
+pub use gpu::Context;
+/// Records a frame of a scene into a command buffer, or renders and reads it back.
+pub use raster::{RenderOptions, Renderer};
+/// Exclusive prefix sum of u32 counts on the device.
+pub use scan::PrefixScan;
+/// A sparse-voxel model (host) and its device copy.
+pub use scene::{Scene, SceneGpu};
+/// Onesweep radix sort of u64 keys with u32 values on the device.
+pub use sort::RadixSort;
+/// Every hyperparameter of a run.
+pub use train::config::TrainConfig;
+/// Trains a scene: one iteration per call, adaptive steps on the schedule.
+pub use train::trainer::Trainer;

@@ -1,11 +1,11 @@
-// Total variation of the grid-point densities (shared body of train/tv.comp and
-// train/tv_cas.comp). Thread per voxel v with corners corners[8v + c] (c = x<<2|y<<1|z):
+// Total variation of the grid-point densities (body of the kernels train/tv, with native
+// float atomic adds, and train/tv_cas, with compare-and-swap adds: build.rs's table). Thread per voxel v with corners corners[8v + c] (c = x<<2|y<<1|z):
 //   L_v = Σ over the 12 cube edges (a, b) of (geo[a] − geo[b])²
 //   grad[corner c] += weight · ∂L_v/∂geo[c] = weight · 2 Σ_{k<3} (geo[c] − geo[c ^ 1<<k])
 // The adds go through atomic_add_f32 (grid points are shared between voxels). The sum
 // of L_v over each workgroup (weight not applied) goes to partials[group] by a
 // shared-memory tree reduction; the host adds the partials in f64.
-// The including kernel must include atomic_f32.glsl first.
+#include "atomic_f32.glsl"
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {

@@ -1,4 +1,4 @@
-// Training backward, per voxel (shared by train/voxel_backward[_cas].comp): the voxel's
+// Training backward, per voxel (kernels train/voxel_backward[_cas], from build.rs's table): the voxel's
 // accumulated ∂L/∂rgb through max(0, 0.5 + SH) to its SH coefficients (written, so
 // voxels off screen get zeros), ∂L/∂normal through n = ∇/|∇| and the centre gradient to
 // its 8 corner densities, and those through the corner indices into the grid points'

@@ -6,7 +6,7 @@
 pub mod stats;
 pub mod topology;
 
-use crate::data::Camera;
+use crate::camera::Camera;
 use crate::gpu::Context;
 use crate::raster::Renderer;
 use crate::scene::{Scene, SceneGpu};

@@ -27,16 +27,13 @@
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
 
-use crate::data::Camera;
+use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::gpu::{grid_2d, kernels, recorder, Buffer, Context, Kernel, Memory};
+use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
 use crate::push_constants;
 use crate::raster::{RenderOptions, Renderer};
 use crate::scene::Scene;
 use crate::scene::SceneGpu;
-
-/// Voxels per workgroup of the interval kernel.
-const GROUP: u32 = 256;
 
 /// Per-voxel statistics gathered over a set of views (host copy).
 #[derive(Clone, Debug, Default)]
@@ -233,11 +230,7 @@ impl StatsPass {
             count: self.voxels,
             pad: 0,
         };
-        let groups = grid_2d(
-            self.voxels.div_ceil(GROUP),
-            self.ctx.info().max_compute_work_group_count[0],
-        );
-        self.kernel.dispatch(cmd, &push, groups);
+        self.kernel.dispatch_1d(cmd, &push, self.voxels);
         recorder::barrier(&self.ctx, cmd);
         Ok(())
     }

@@ -44,7 +44,7 @@ use std::time::Instant;
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
-use crate::gpu::{grid_2d, kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
+use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
 use crate::push_constants;
 use crate::scan::{PrefixScan, SCAN_TILE};
 use crate::scene::{Scene, MAX_LEVEL, MAX_VOXELS};
@@ -57,8 +57,6 @@ pub type Moments = Vec<Vec<f32>>;
 
 /// Bit of the dedup flags: more than 8 candidates share a grid point.
 const FLAG_LONG_RUN: u32 = 1;
-/// Invocations per workgroup of the three kernels.
-const GROUP: u32 = 256;
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -425,7 +423,6 @@ impl Topology {
         ) else {
             return Err(Error::Gpu("topology buffers missing".into()));
         };
-        let max_x = ctx.info().max_compute_work_group_count[0];
         let ts = &mut self.timestamps;
         let sorted = ctx.submit_and_wait(|cmd| {
             ts.begin(cmd);
@@ -434,7 +431,7 @@ impl Topology {
             recorder::barrier(&ctx, cmd);
             ts.mark(cmd, "upload");
             let a = input.address();
-            self.candidates.dispatch(
+            self.candidates.dispatch_1d(
                 cmd,
                 &CandidatesPush {
                     path: a + layout.path,
@@ -449,7 +446,7 @@ impl Topology {
                     bits,
                     planes,
                 },
-                grid_2d((new_n as u32).div_ceil(GROUP), max_x),
+                new_n as u32,
             );
             recorder::barrier(&ctx, cmd);
             ts.mark(cmd, "candidates");
@@ -470,8 +467,7 @@ impl Topology {
                 Sorted::Primary => (&b.keys, &b.vals, &b.keys_alt),
                 Sorted::Alternate => (&b.keys_alt, &b.vals_alt, &b.keys),
             };
-            let groups = grid_2d(cand_n.div_ceil(GROUP), max_x);
-            self.heads.dispatch(
+            self.heads.dispatch_1d(
                 cmd,
                 &HeadsPush {
                     keys: skeys.address(),
@@ -480,7 +476,7 @@ impl Topology {
                     count: cand_n,
                     pad: 0,
                 },
-                groups,
+                cand_n,
             );
             recorder::barrier(&ctx, cmd);
             ts.mark(cmd, "heads");
@@ -492,7 +488,7 @@ impl Topology {
                 Some((&self.counters, 0)),
             )?;
             ts.mark(cmd, "scan");
-            self.merge.dispatch(
+            self.merge.dispatch_1d(
                 cmd,
                 &MergePush {
                     keys: skeys.address(),
@@ -508,7 +504,7 @@ impl Topology {
                     bits,
                     planes,
                 },
-                groups,
+                cand_n,
             );
             recorder::barrier(&ctx, cmd);
             ts.mark(cmd, "merge");

@@ -18,9 +18,9 @@ use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
 use super::blender::parse_matrix;
-use super::camera::normalize;
 use super::image::{io_error, save_rgba_png, write_atomic};
 use super::Camera;
+use crate::camera::normalize;
 use crate::scene::{key_coords, octpath_from_ijk, Scene, MAX_SH_DEGREE};
 use crate::{Error, Result};
 

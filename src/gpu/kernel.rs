@@ -45,6 +45,8 @@ pub struct Kernel {
     pub(crate) source: &'static KernelSource,
     pipeline: vk::Pipeline,
     layout: vk::PipelineLayout,
+    /// The device's largest workgroup count along x (1-D work beyond it goes 2-D).
+    max_groups_x: u32,
 }
 
 impl Kernel {
@@ -109,6 +111,7 @@ impl Kernel {
             source,
             pipeline,
             layout,
+            max_groups_x: ctx.info().max_compute_work_group_count[0],
         })
     }
 
@@ -147,6 +150,20 @@ impl Kernel {
                 .device
                 .cmd_dispatch(cmd, groups[0], groups[1], groups[2])
         };
+    }
+
+    /// Workgroups that cover `items` threads of 1-D work (the reflected `local_size_x`
+    /// threads each).
+    pub fn groups_1d(&self, items: u32) -> u32 {
+        items.div_ceil(self.source.local_size[0])
+    }
+
+    /// Records a dispatch covering `items` threads of 1-D work: [`Self::groups_1d`]
+    /// workgroups, as a 2-D grid where they exceed the device's x limit (the shader
+    /// derives its linear index from `linear_group_id` in common.glsl).
+    pub fn dispatch_1d<P: bytemuck::Pod>(&self, cmd: vk::CommandBuffer, push: &P, items: u32) {
+        let groups = super::grid_2d(self.groups_1d(items), self.max_groups_x);
+        self.dispatch(cmd, push, groups);
     }
 
     /// Records an indirect dispatch reading `VkDispatchIndirectCommand` at `offset`.

@@ -40,7 +40,7 @@ pub use plan::FrameGeometry;
 use plan::{Grow, Plan};
 pub use readback::{FrameStats, Image};
 
-use crate::data::Camera;
+use crate::camera::Camera;
 use crate::gpu::{glsl, kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
 use crate::scan::PrefixScan;
 use crate::scene::{Scene, MAX_LEVEL};
@@ -435,10 +435,8 @@ impl Renderer {
             recorder::fill(&ctx, cmd, c, 0, vk::WHOLE_SIZE, 0);
         }
         recorder::barrier(&ctx, cmd);
-        let max_x = ctx.info().max_compute_work_group_count[0];
         let n = scene.voxels;
-        self.preprocess
-            .dispatch(cmd, &pa, crate::gpu::grid_2d(n.div_ceil(256), max_x));
+        self.preprocess.dispatch_1d(cmd, &pa, n);
         recorder::barrier(&ctx, cmd);
         if let Some(t) = ts {
             t.mark(cmd, "preprocess");
@@ -555,13 +553,11 @@ impl Renderer {
             t.mark(cmd, "composite");
         }
         let rpix = plan.render_w * plan.render_h;
-        self.finalize
-            .dispatch(cmd, &pa, crate::gpu::grid_2d(rpix.div_ceil(256), max_x));
+        self.finalize.dispatch_1d(cmd, &pa, rpix);
         recorder::barrier(&ctx, cmd);
         if plan.supersampled {
             let opix = plan.out_w * plan.out_h;
-            self.downsample
-                .dispatch(cmd, &pa, crate::gpu::grid_2d(opix.div_ceil(256), max_x));
+            self.downsample.dispatch_1d(cmd, &pa, opix);
             recorder::barrier(&ctx, cmd);
         }
         if let Some(t) = ts {

@@ -2,7 +2,7 @@
 //! tiles, chunks, sort bits) and the capacity reservations made before recording.
 
 use super::{RenderOptions, Renderer, AUX_CHANNELS, CHANNELS, MAX_IMAGE_EDGE, TILE};
-use crate::data::Camera;
+use crate::camera::Camera;
 use crate::gpu::{Buffer, Context, Memory};
 use crate::scan::PrefixScan;
 use crate::scene::SceneGpu;

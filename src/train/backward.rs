@@ -376,14 +376,12 @@ impl Backward {
         );
         recorder::fill(&ctx, cmd, &grads.geo, 0, vk::WHOLE_SIZE, 0);
         recorder::barrier(&ctx, cmd);
-        let max_x = ctx.info().max_compute_work_group_count[0];
         let p2 = Push2 {
             frame: frame.params,
             back: self.params.address(),
         };
         let rpix = frame.render_width * frame.render_height;
-        self.prepare_k
-            .dispatch(cmd, &p2, crate::gpu::grid_2d(rpix.div_ceil(256), max_x));
+        self.prepare_k.dispatch_1d(cmd, &p2, rpix);
         recorder::barrier(&ctx, cmd);
         let k = &self.backward[frame.counters as usize][samples as usize - 1];
         for chunk in (0..chunks).rev() {
@@ -399,11 +397,7 @@ impl Backward {
             );
             recorder::barrier(&ctx, cmd);
         }
-        self.voxel.dispatch(
-            cmd,
-            &p2,
-            crate::gpu::grid_2d(scene.voxels.max(1).div_ceil(256), max_x),
-        );
+        self.voxel.dispatch_1d(cmd, &p2, scene.voxels.max(1));
         recorder::barrier(&ctx, cmd);
         Ok(())
     }

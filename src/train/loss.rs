@@ -76,7 +76,8 @@ impl PixelLoss {
     ) -> Result<()> {
         let nout = frame.out_width * frame.out_height;
         let nrender = frame.render_width * frame.render_height;
-        let groups = nout.max(nrender).div_ceil(256);
+        let items = nout.max(nrender);
+        let groups = self.kernel.groups_1d(items);
         let need = groups as u64 * 3 * 4;
         if self.partials.as_ref().is_none_or(|b| b.size() < need) {
             self.partials = None;
@@ -86,8 +87,7 @@ impl PixelLoss {
                 Memory::Device,
             )?);
         }
-        let max_x = self.ctx.info().max_compute_work_group_count[0];
-        self.kernel.dispatch(
+        self.kernel.dispatch_1d(
             cmd,
             &LossPush {
                 frame: frame.params,
@@ -100,7 +100,7 @@ impl PixelLoss {
                 nout,
                 nrender,
             },
-            crate::gpu::grid_2d(groups, max_x),
+            items,
         );
         recorder::barrier(&self.ctx, cmd);
         self.groups = groups;

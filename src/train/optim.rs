@@ -15,14 +15,11 @@ use ash::vk;
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
-use crate::gpu::{grid_2d, kernels, recorder, Buffer, Context, Kernel, Memory};
+use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
 use crate::push_constants;
 
 /// Bit of the Adam flags word set by a non-finite gradient or parameter.
 pub const ADAM_FLAG_NONFINITE: u32 = 1;
-
-/// Elements per workgroup of the Adam and TV kernels.
-const GROUP: u32 = 256;
 
 /// Adam hyper-parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -137,12 +134,7 @@ impl Adam {
             return;
         }
         let push = AdamPush::new(param, grad, m, v, self.flags.address(), count, step, cfg);
-        let groups = count.div_ceil(GROUP);
-        self.kernel.dispatch(
-            cmd,
-            &push,
-            grid_2d(groups, self.ctx.info().max_compute_work_group_count[0]),
-        );
+        self.kernel.dispatch_1d(cmd, &push, count);
         recorder::barrier(&self.ctx, cmd);
     }
 
@@ -229,7 +221,7 @@ impl Tv {
         if !weight.is_finite() {
             return Err(Error::Invalid(format!("TV weight {weight} is not finite")));
         }
-        let groups = voxels.div_ceil(GROUP);
+        let groups = self.kernel.groups_1d(voxels);
         let need = u64::from(groups.max(1)) * 4;
         if self.partials.as_ref().is_none_or(|b| b.size() < need) {
             let size = need.saturating_add(need / 2);
@@ -251,11 +243,7 @@ impl Tv {
             voxels,
             weight,
         };
-        self.kernel.dispatch(
-            cmd,
-            &push,
-            grid_2d(groups, self.ctx.info().max_compute_work_group_count[0]),
-        );
+        self.kernel.dispatch_1d(cmd, &push, voxels);
         recorder::barrier(&self.ctx, cmd);
         Ok(())
     }

@@ -54,7 +54,14 @@ use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
 use crate::push_constants;
 use crate::{Error, Result};
 
-const WG: u64 = 256;
+/// Threads per workgroup of the four SSIM kernels (reflected; one grid serves all four).
+const WG: u64 = kernels::TRAIN_SSIM_STATS.local_size[0] as u64;
+const _: () = assert!(
+    kernels::TRAIN_SSIM_HBLUR_IN.local_size[0] as u64 == WG
+        && kernels::TRAIN_SSIM_HBLUR_BACK.local_size[0] as u64 == WG
+        && kernels::TRAIN_SSIM_GRAD.local_size[0] as u64 == WG,
+    "the SSIM kernels share one dispatch grid: give them one local size"
+);
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]

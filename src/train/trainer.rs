@@ -23,7 +23,7 @@ use super::optim::{Adam, AdamConfig, Tv};
 use super::ssim::Ssim;
 use crate::adapt::stats::StatsPass;
 use crate::adapt::topology::Topology;
-use crate::data::Camera;
+use crate::camera::Camera;
 use crate::gpu::{recorder, Buffer, Context, Timestamps};
 use crate::raster::{RenderOptions, Renderer};
 use crate::scene::{Scene, SceneGpu};
