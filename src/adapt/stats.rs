@@ -29,7 +29,7 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
+use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel};
 use crate::push_constants;
 use crate::raster::{RenderOptions, Renderer};
 use crate::scene::Scene;
@@ -79,9 +79,9 @@ pub struct StatsPass {
     ctx: Context,
     kernel: Kernel,
     /// One `u32` (f32 bits) per voxel.
-    max_weight: Option<Buffer>,
+    max_weight: GrowBuffer,
     /// One `f32` per voxel.
-    min_interval: Option<Buffer>,
+    min_interval: GrowBuffer,
     voxels: u32,
 }
 
@@ -90,8 +90,8 @@ impl StatsPass {
         Ok(StatsPass {
             ctx: ctx.clone(),
             kernel: Kernel::new(ctx, &kernels::ADAPT_SAMPLING_INTERVAL)?,
-            max_weight: None,
-            min_interval: None,
+            max_weight: GrowBuffer::new("adapt.max-weight"),
+            min_interval: GrowBuffer::new("adapt.min-interval"),
             voxels: 0,
         })
     }
@@ -102,23 +102,17 @@ impl StatsPass {
     }
 
     /// Resets the accumulators for `voxels` voxels: max weight 0, min interval +inf.
-    /// Grows the device buffers as needed (by 1.5×; no frame using them may be in
+    /// Grows the device buffers as needed ([`GrowBuffer`]'s policy; no frame using them may be in
     /// flight).
     pub fn begin(&mut self, voxels: u32) -> Result<()> {
         let bytes = u64::from(voxels.max(1)) * 4;
-        let small = |b: &Option<Buffer>| b.as_ref().is_none_or(|b| b.size() < bytes);
-        if small(&self.max_weight) || small(&self.min_interval) {
-            let size = bytes.saturating_add(bytes / 2);
-            // Free the old ones first, so peak memory stays low.
-            self.max_weight = None;
-            self.min_interval = None;
-            self.max_weight = Some(self.ctx.buffer("adapt.max-weight", size, Memory::Device)?);
-            self.min_interval = Some(self.ctx.buffer(
-                "adapt.min-interval",
-                size,
-                Memory::Device,
-            )?);
+        // Both freed before either grows, so peak memory stays low.
+        if self.max_weight.bytes() < bytes || self.min_interval.bytes() < bytes {
+            self.max_weight.release();
+            self.min_interval.release();
         }
+        self.max_weight.ensure(&self.ctx, bytes)?;
+        self.min_interval.ensure(&self.ctx, bytes)?;
         let (mw, mi) = self.buffers()?;
         self.ctx.submit_and_wait(|cmd| {
             recorder::fill(&self.ctx, cmd, mw, 0, vk::WHOLE_SIZE, 0);
@@ -138,7 +132,7 @@ impl StatsPass {
     }
 
     fn buffers(&self) -> Result<(&Buffer, &Buffer)> {
-        match (&self.max_weight, &self.min_interval) {
+        match (self.max_weight.buffer(), self.min_interval.buffer()) {
             (Some(a), Some(b)) => Ok((a, b)),
             _ => Err(Error::Invalid(
                 "StatsPass: call begin() before adding views".into(),
@@ -237,12 +231,12 @@ impl StatsPass {
 
     /// Device address of the max-weight accumulator (one `u32` of `f32` bits per voxel).
     pub fn max_weight_address(&self) -> u64 {
-        self.max_weight.as_ref().map_or(0, |b| b.address())
+        self.max_weight.buffer().map_or(0, |b| b.address())
     }
 
     /// Device address of the min-interval accumulator (one `f32` per voxel).
     pub fn min_interval_address(&self) -> u64 {
-        self.min_interval.as_ref().map_or(0, |b| b.address())
+        self.min_interval.buffer().map_or(0, |b| b.address())
     }
 
     /// Downloads the accumulators (waits for the device).

@@ -44,7 +44,7 @@ use std::time::Instant;
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
-use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
+use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Memory, Timestamps};
 use crate::push_constants;
 use crate::scan::{PrefixScan, SCAN_TILE};
 use crate::scene::{Scene, MAX_LEVEL, MAX_VOXELS};
@@ -201,29 +201,11 @@ pub struct Topology {
     /// [0] unique count (scan total), [1] flags.
     counters: Buffer,
     bufs: Option<CandidateBuffers>,
-    staging: Option<Buffer>,
-    input: Option<Buffer>,
-    readback: Option<Buffer>,
+    staging: GrowBuffer,
+    input: GrowBuffer,
+    readback: GrowBuffer,
     timestamps: Timestamps,
     stats: TopologyStats,
-}
-
-/// Ensures `slot` holds a buffer of at least `bytes`, replacing it by one 1.25× larger
-/// when it is too small (the old one is idle: every use waits for its submission).
-fn ensure<'a>(
-    ctx: &Context,
-    slot: &'a mut Option<Buffer>,
-    name: &str,
-    bytes: u64,
-    memory: Memory,
-) -> Result<&'a mut Buffer> {
-    if slot.as_ref().is_none_or(|b| b.size() < bytes) {
-        *slot = None;
-        let size = bytes.saturating_add(bytes / 4).max(64);
-        *slot = Some(ctx.buffer(name, size, memory)?);
-    }
-    slot.as_mut()
-        .ok_or_else(|| Error::Gpu(format!("buffer `{name}` missing")))
 }
 
 fn write_bytes(dst: &mut [u8], offset: u64, src: &[u8]) {
@@ -240,9 +222,9 @@ impl Topology {
             merge: Kernel::new(ctx, &kernels::ADAPT_DEDUP_MERGE)?,
             counters: ctx.buffer("topology.counters", 16, Memory::Device)?,
             bufs: None,
-            staging: None,
-            input: None,
-            readback: None,
+            staging: GrowBuffer::with_memory("topology.staging", Memory::Upload),
+            input: GrowBuffer::new("topology.input"),
+            readback: GrowBuffer::with_memory("topology.readback", Memory::Readback),
             timestamps: Timestamps::new(ctx, 32)?,
             stats: TopologyStats::default(),
         })
@@ -365,14 +347,11 @@ impl Topology {
         let layout = InputLayout::new(new_n as u64, g as u64 * u64::from(planes));
         let ctx = self.ctx.clone();
         {
-            let staging = ensure(
-                &ctx,
-                &mut self.staging,
-                "topology.staging",
-                layout.end,
-                Memory::Upload,
-            )?;
-            let dst = staging
+            self.staging.ensure(&ctx, layout.end)?;
+            let dst = self
+                .staging
+                .buffer_mut()
+                .ok_or_else(|| Error::Gpu("topology staging buffer missing".into()))?
                 .mapped_mut()
                 .ok_or_else(|| Error::Gpu("topology staging buffer is not host-visible".into()))?;
             write_bytes(dst, layout.path, bytemuck::cast_slice(&octpath));
@@ -390,13 +369,7 @@ impl Topology {
         }
         drop(parent);
         drop(info);
-        ensure(
-            &ctx,
-            &mut self.input,
-            "topology.input",
-            layout.end,
-            Memory::Device,
-        )?;
+        self.input.ensure(&ctx, layout.end)?;
         if self.bufs.as_ref().is_none_or(|b| b.capacity < cand_n) {
             self.bufs = None;
             let cap = cand_n
@@ -405,21 +378,15 @@ impl Topology {
                 .min(u32::MAX - SCAN_TILE);
             self.bufs = Some(CandidateBuffers::new(&ctx, cap)?);
         }
-        ensure(
-            &ctx,
-            &mut self.readback,
-            "topology.readback",
-            16,
-            Memory::Readback,
-        )?;
+        self.readback.ensure(&ctx, 16)?;
         let t1 = Instant::now();
 
         // 2.-4. One submission: upload, candidates, sort, dedup.
         let (Some(b), Some(staging), Some(input), Some(readback)) = (
             self.bufs.as_ref(),
-            self.staging.as_ref(),
-            self.input.as_ref(),
-            self.readback.as_ref(),
+            self.staging.buffer(),
+            self.input.buffer(),
+            self.readback.buffer(),
         ) else {
             return Err(Error::Gpu("topology buffers missing".into()));
         };
@@ -543,16 +510,10 @@ impl Topology {
         let off_vals = (unique as u64 * 8).next_multiple_of(16);
         let off_corners = (off_vals + unique as u64 * 4 * u64::from(planes)).next_multiple_of(16);
         let rb_end = off_corners + u64::from(cand_n) * 4;
-        ensure(
-            &ctx,
-            &mut self.readback,
-            "topology.readback",
-            rb_end,
-            Memory::Readback,
-        )?;
+        self.readback.ensure(&ctx, rb_end)?;
         let readback = self
             .readback
-            .as_ref()
+            .buffer()
             .ok_or_else(|| Error::Gpu("topology read-back missing".into()))?;
         let free_keys = match sorted {
             Sorted::Primary => &b.keys_alt,

@@ -1,6 +1,7 @@
 //! clap commands.
 
 mod bench;
+mod bench_sort;
 mod info;
 mod plot;
 mod progress;

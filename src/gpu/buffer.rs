@@ -279,3 +279,106 @@ impl Context {
             .unwrap_or(0)
     }
 }
+
+/// A buffer that grows on demand, with the engine's one growth policy: a request of `n`
+/// bytes that does not fit allocates 1.25·n (a slowly growing need — voxels after each
+/// subdivision, entries per view — does not reallocate at every step, and the slack of
+/// the largest per-voxel buffers stays a quarter), capped at the device's largest
+/// allocation, at least 16 bytes; the contents are not kept.
+pub struct GrowBuffer {
+    name: &'static str,
+    memory: Memory,
+    buf: Option<Buffer>,
+}
+
+impl GrowBuffer {
+    /// An empty device-local buffer (nothing allocated until [`Self::ensure`]).
+    pub fn new(name: &'static str) -> GrowBuffer {
+        Self::with_memory(name, Memory::Device)
+    }
+
+    /// An empty buffer in `memory` (e.g. [`Memory::Upload`] staging).
+    pub fn with_memory(name: &'static str, memory: Memory) -> GrowBuffer {
+        GrowBuffer {
+            name,
+            memory,
+            buf: None,
+        }
+    }
+
+    /// The size a request of `bytes` allocates.
+    pub fn grown_size(ctx: &Context, bytes: u64) -> u64 {
+        let bytes = bytes.max(16);
+        let want = bytes.saturating_add(bytes / 4);
+        let limit = ctx.info().max_memory_allocation_size;
+        if want > limit && bytes <= limit {
+            limit
+        } else {
+            want
+        }
+    }
+
+    /// Makes the buffer hold at least `bytes`; returns whether it was reallocated. The
+    /// old buffer is freed first (peak memory is the new size alone), so no recorded
+    /// command buffer that uses it may still be pending.
+    pub fn ensure(&mut self, ctx: &Context, bytes: u64) -> Result<bool> {
+        if self.fits(bytes) {
+            return Ok(false);
+        }
+        self.buf = None;
+        self.buf = Some(ctx.buffer(self.name, Self::grown_size(ctx, bytes), self.memory)?);
+        Ok(true)
+    }
+
+    /// Like [`Self::ensure`], but the old buffer is moved to `retired` instead of freed
+    /// (for buffers that command buffers recorded earlier, not yet completed, still use).
+    pub fn ensure_retiring(
+        &mut self,
+        ctx: &Context,
+        bytes: u64,
+        retired: &mut Vec<Buffer>,
+    ) -> Result<bool> {
+        if self.fits(bytes) {
+            return Ok(false);
+        }
+        let new = ctx.buffer(self.name, Self::grown_size(ctx, bytes), self.memory)?;
+        if let Some(old) = self.buf.replace(new) {
+            retired.push(old);
+        }
+        Ok(true)
+    }
+
+    /// The buffer, if allocated.
+    pub fn buffer(&self) -> Option<&Buffer> {
+        self.buf.as_ref()
+    }
+
+    /// The buffer, mutably (to write a host-visible one), if allocated.
+    pub fn buffer_mut(&mut self) -> Option<&mut Buffer> {
+        self.buf.as_mut()
+    }
+
+    /// Frees the buffer now (the next [`Self::ensure`] allocates afresh).
+    pub fn release(&mut self) {
+        self.buf = None;
+    }
+
+    fn fits(&self, bytes: u64) -> bool {
+        self.buf.as_ref().is_some_and(|b| b.size() >= bytes.max(16))
+    }
+
+    /// The buffer (panics if [`Self::ensure`] was never called: a recording bug).
+    pub fn get(&self) -> &Buffer {
+        self.buf.as_ref().expect("buffer ensured before use")
+    }
+
+    /// Device address of the buffer (see [`Self::get`]).
+    pub fn address(&self) -> u64 {
+        self.get().address()
+    }
+
+    /// Bytes allocated (0 before the first [`Self::ensure`]).
+    pub fn bytes(&self) -> u64 {
+        self.buf.as_ref().map_or(0, |b| b.size())
+    }
+}

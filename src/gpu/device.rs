@@ -43,6 +43,42 @@ impl DeviceInfo {
     }
 }
 
+/// Device-dependent tuning, all in one place (what differs between a CPU rasterizer such
+/// as llvmpipe and a GPU).
+impl DeviceInfo {
+    /// Look-back polls before the fallback: CPU devices run one workgroup per thread, so
+    /// a short spin costs little and the fallback is cheap; GPUs publish within
+    /// microseconds.
+    pub fn lookback_spin_limit(&self) -> u32 {
+        if self.is_cpu {
+            256
+        } else {
+            4096
+        }
+    }
+
+    /// Entries per composite dispatch of the forward: under the loop limit
+    /// ([`Self::loop_limit`]: 65 535 trips per invocation) far below it, ≤ ~7 trips per
+    /// entry even if nothing unrolls; unbounded (2²²) elsewhere.
+    pub fn forward_chunk_entries(&self) -> u32 {
+        if self.loop_limit() {
+            8192
+        } else {
+            1 << 22
+        }
+    }
+
+    /// Entries per backward dispatch: the per-entry work has more loops than the
+    /// forward's (samples × corners, and a CAS loop per add without float atomics).
+    pub fn backward_chunk_entries(&self, float_atomics: bool) -> u32 {
+        match (self.loop_limit(), float_atomics) {
+            (false, _) => 1 << 22,
+            (true, true) => 2048,
+            (true, false) => 1024,
+        }
+    }
+}
+
 /// Major Mesa version in a driver-info string such as "Mesa 25.0.7-2~bpo12+1 (LLVM 15.0.6)".
 pub(super) fn mesa_major(driver_info: &str) -> Option<u32> {
     driver_info

@@ -8,7 +8,7 @@ mod device;
 mod kernel;
 pub mod recorder;
 
-pub use buffer::{Buffer, Memory};
+pub use buffer::{Buffer, GrowBuffer, Memory};
 pub use context::{BorrowedHandles, Context, ContextOptions};
 pub use device::DeviceInfo;
 pub use kernel::{Kernel, KernelSource};

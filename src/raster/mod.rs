@@ -170,14 +170,7 @@ impl Renderer {
             sort: None,
             voxel_cap: 0,
             entry_cap: 0,
-            // llvmpipe before Mesa 25 stops an invocation's loops after 65 535
-            // iterations in total: keep each composite dispatch far below (≤ ~7 trips
-            // per entry even if nothing unrolls). GPUs and Mesa 25 have no such limit.
-            chunk_size: if ctx.info().loop_limit() {
-                8192
-            } else {
-                1 << 22
-            },
+            chunk_size: ctx.info().forward_chunk_entries(),
             chunks: 1,
             bbox: Grow::new("raster.bbox"),
             signs: Grow::new("raster.signs"),

@@ -3,48 +3,11 @@
 
 use super::{RenderOptions, Renderer, AUX_CHANNELS, CHANNELS, MAX_IMAGE_EDGE, TILE};
 use crate::camera::Camera;
-use crate::gpu::{Buffer, Context, Memory};
+pub(super) use crate::gpu::GrowBuffer as Grow;
 use crate::scan::PrefixScan;
 use crate::scene::SceneGpu;
 use crate::sort::RadixSort;
 use crate::{Error, Result};
-
-/// A buffer that grows (by 1.5×) when more is needed.
-pub(super) struct Grow {
-    pub(super) name: &'static str,
-    pub(super) buf: Option<Buffer>,
-}
-
-impl Grow {
-    pub(super) fn new(name: &'static str) -> Grow {
-        Grow { name, buf: None }
-    }
-    pub(super) fn ensure(&mut self, ctx: &Context, bytes: u64) -> Result<()> {
-        let bytes = bytes.max(16);
-        if self.buf.as_ref().is_some_and(|b| b.size() >= bytes) {
-            return Ok(());
-        }
-        self.buf = None;
-        let want = bytes.saturating_add(bytes / 2);
-        let limit = ctx.info().max_memory_allocation_size;
-        let size = if want > limit && bytes <= limit {
-            limit
-        } else {
-            want
-        };
-        self.buf = Some(ctx.buffer(self.name, size, Memory::Device)?);
-        Ok(())
-    }
-    pub(super) fn get(&self) -> &Buffer {
-        self.buf.as_ref().expect("buffer ensured before use")
-    }
-    pub(super) fn address(&self) -> u64 {
-        self.get().address()
-    }
-    pub(super) fn bytes(&self) -> u64 {
-        self.buf.as_ref().map_or(0, |b| b.size())
-    }
-}
 
 /// Everything a recorded frame needs to interpret its results.
 #[derive(Clone, Copy, Debug)]
@@ -108,7 +71,7 @@ impl Renderer {
             (&mut self.vals, 4),
             (&mut self.vals_alt, 4),
         ] {
-            g.buf = None;
+            g.release();
             g.ensure(&ctx, cap as u64 * w)?;
         }
         self.sort = Some(RadixSort::new(&ctx, cap)?);

@@ -7,7 +7,7 @@ use bytemuck::{Pod, Zeroable};
 use crate::error::{Error, Result};
 use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
 use crate::push_constants;
-use crate::sort::{spin_limit, Count, RunState, ST_ARGS_TILES, ST_N, ST_TOTAL};
+use crate::sort::{Count, RunState, ST_ARGS_TILES, ST_N, ST_TOTAL};
 
 /// Elements per scan tile (WG × IPT in scan.comp).
 pub const SCAN_TILE: u32 = 256 * 8;
@@ -86,7 +86,7 @@ impl PrefixScan {
             state: self.run.state.address(),
             status: self.run.status.address(),
             total: total.map(|(b, o)| b.address() + o).unwrap_or(0),
-            spin_limit: spin_limit(ctx),
+            spin_limit: ctx.info().lookback_spin_limit(),
             pad: 0,
         };
         self.scan

@@ -113,16 +113,6 @@ pub fn passes_for(bits: &Range<u32>) -> u32 {
     (bits.end - bits.start).div_ceil(8)
 }
 
-/// Look-back polls before the fallback: CPU devices run one workgroup per thread, so a
-/// short spin costs little and the fallback is cheap; GPUs publish within microseconds.
-pub(crate) fn spin_limit(ctx: &Context) -> u32 {
-    if ctx.info().is_cpu {
-        256
-    } else {
-        4096
-    }
-}
-
 /// The per-run state shared by sort and scan: a state buffer (counts, dispatch
 /// arguments, histograms, errors) and the look-back status words.
 pub(crate) struct RunState {
@@ -316,7 +306,7 @@ impl RadixSort {
         if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "sort.histogram");
         }
-        let spin = spin_limit(ctx);
+        let spin = ctx.info().lookback_spin_limit();
         for p in 0..passes {
             let shift = bits.start + 8 * p;
             let (ki, vi, ko, vo) = if p % 2 == 0 {

@@ -10,7 +10,7 @@
 
 use ash::vk;
 
-use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
+use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Memory};
 use crate::push_constants;
 use crate::raster::{FrameGeometry, FrameStats};
 use crate::scene::SceneGpu;
@@ -151,17 +151,6 @@ push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_CAS_COUNTERS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_CAS_COUNTERS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_CAS_COUNTERS);
 
-/// Device buffer that only grows.
-fn ensure(ctx: &Context, slot: &mut Option<Buffer>, name: &str, bytes: u64) -> Result<()> {
-    let bytes = bytes.max(16);
-    if slot.as_ref().is_some_and(|b| b.size() >= bytes) {
-        return Ok(());
-    }
-    *slot = None;
-    *slot = Some(ctx.buffer(name, bytes + bytes / 4, Memory::Device)?);
-    Ok(())
-}
-
 /// The backward pass with its kernels and scratch buffers.
 pub struct Backward {
     ctx: Context,
@@ -173,10 +162,10 @@ pub struct Backward {
     chunk_size: u32,
     params: Buffer,
     lost: Buffer,
-    dout: Option<Buffer>,
-    dimg: Option<Buffer>,
-    bstate: Option<Buffer>,
-    vgrad: Option<Buffer>,
+    dout: GrowBuffer,
+    dimg: GrowBuffer,
+    bstate: GrowBuffer,
+    vgrad: GrowBuffer,
 }
 
 impl Backward {
@@ -235,27 +224,17 @@ impl Backward {
             ],
             voxel: Kernel::new(ctx, v)?,
             float_atomics: fa,
-            // llvmpipe's loop limit (65 535 trips per invocation): the per-entry work has
-            // more loops than the forward's (samples x corners, and a CAS loop per add).
-            chunk_size: if ctx.info().loop_limit() {
-                if fa {
-                    2048
-                } else {
-                    1024
-                }
-            } else {
-                1 << 22
-            },
+            chunk_size: ctx.info().backward_chunk_entries(fa),
             params: ctx.buffer(
                 "backward.params",
                 std::mem::size_of::<BackParams>() as u64,
                 Memory::Device,
             )?,
             lost,
-            dout: None,
-            dimg: None,
-            bstate: None,
-            vgrad: None,
+            dout: GrowBuffer::new("backward.dout"),
+            dimg: GrowBuffer::new("backward.dimg"),
+            bstate: GrowBuffer::new("backward.state"),
+            vgrad: GrowBuffer::new("backward.voxel-grads"),
         })
     }
 
@@ -274,30 +253,11 @@ impl Backward {
         let ctx = self.ctx.clone();
         let opix = frame.out_width as u64 * frame.out_height as u64;
         let rpix = frame.render_width as u64 * frame.render_height as u64;
-        ensure(
-            &ctx,
-            &mut self.dout,
-            "backward.dout",
-            opix * dout::CHANNELS as u64 * 4,
-        )?;
-        ensure(
-            &ctx,
-            &mut self.dimg,
-            "backward.dimg",
-            rpix * DI_CHANNELS * 4,
-        )?;
-        ensure(
-            &ctx,
-            &mut self.bstate,
-            "backward.state",
-            rpix * BS_CHANNELS * 4,
-        )?;
-        ensure(
-            &ctx,
-            &mut self.vgrad,
-            "backward.voxel-grads",
-            voxels.max(1) as u64 * VG_STRIDE * 4,
-        )?;
+        self.dout.ensure(&ctx, opix * dout::CHANNELS as u64 * 4)?;
+        self.dimg.ensure(&ctx, rpix * DI_CHANNELS * 4)?;
+        self.bstate.ensure(&ctx, rpix * BS_CHANNELS * 4)?;
+        self.vgrad
+            .ensure(&ctx, voxels.max(1) as u64 * VG_STRIDE * 4)?;
         Ok(())
     }
 
@@ -305,7 +265,7 @@ impl Backward {
     /// losses write before [`Backward::record`]; every channel must be written.
     pub fn dout(&self) -> Result<&Buffer> {
         self.dout
-            .as_ref()
+            .buffer()
             .ok_or_else(|| Error::Invalid("Backward::dout before Backward::prepare".into()))
     }
 
@@ -342,7 +302,7 @@ impl Backward {
         self.prepare(frame, scene.voxels)?;
         let ctx = self.ctx.clone();
         let chunks = stats.max_tile_entries.div_ceil(self.chunk_size).max(1);
-        let get = |b: &Option<Buffer>| b.as_ref().expect("prepared").address();
+        let get = |b: &GrowBuffer| b.address();
         let params = BackParams {
             lambda_dist: losses.lambda_dist,
             lambda_r: losses.lambda_r,
@@ -366,14 +326,7 @@ impl Backward {
         unsafe {
             dev.cmd_update_buffer(cmd, self.params.raw(), 0, bytemuck::bytes_of(&params));
         }
-        recorder::fill(
-            &ctx,
-            cmd,
-            self.vgrad.as_ref().expect("prepared"),
-            0,
-            vk::WHOLE_SIZE,
-            0,
-        );
+        recorder::fill(&ctx, cmd, self.vgrad.get(), 0, vk::WHOLE_SIZE, 0);
         recorder::fill(&ctx, cmd, &grads.geo, 0, vk::WHOLE_SIZE, 0);
         recorder::barrier(&ctx, cmd);
         let p2 = Push2 {

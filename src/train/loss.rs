@@ -6,7 +6,7 @@
 
 use ash::vk;
 
-use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
+use crate::gpu::{kernels, recorder, Context, GrowBuffer, Kernel};
 use crate::push_constants;
 use crate::raster::FrameGeometry;
 use crate::Result;
@@ -43,7 +43,7 @@ pub struct LossSums {
 pub struct PixelLoss {
     ctx: Context,
     kernel: Kernel,
-    partials: Option<Buffer>,
+    partials: GrowBuffer,
     groups: u32,
     pixels: (u32, u32),
 }
@@ -53,7 +53,7 @@ impl PixelLoss {
         Ok(PixelLoss {
             ctx: ctx.clone(),
             kernel: Kernel::new(ctx, &kernels::TRAIN_LOSS)?,
-            partials: None,
+            partials: GrowBuffer::new("loss.partials"),
             groups: 0,
             pixels: (0, 0),
         })
@@ -79,14 +79,7 @@ impl PixelLoss {
         let items = nout.max(nrender);
         let groups = self.kernel.groups_1d(items);
         let need = groups as u64 * 3 * 4;
-        if self.partials.as_ref().is_none_or(|b| b.size() < need) {
-            self.partials = None;
-            self.partials = Some(self.ctx.buffer(
-                "loss.partials",
-                need + need / 4,
-                Memory::Device,
-            )?);
-        }
+        self.partials.ensure(&self.ctx, need)?;
         self.kernel.dispatch_1d(
             cmd,
             &LossPush {
@@ -94,7 +87,7 @@ impl PixelLoss {
                 out_img,
                 gt,
                 dout,
-                partials: self.partials.as_ref().expect("allocated").address(),
+                partials: self.partials.address(),
                 w_mse: lambda_mse / (3.0 * nout as f32),
                 w_t: lambda_t / nout as f32,
                 nout,
@@ -110,7 +103,7 @@ impl PixelLoss {
 
     /// The sums of the last recorded frame (after it completed).
     pub fn read(&self) -> Result<LossSums> {
-        let parts: Vec<f32> = match &self.partials {
+        let parts: Vec<f32> = match self.partials.buffer() {
             Some(b) if self.groups > 0 => self.ctx.download(b, 0, self.groups as usize * 3)?,
             _ => Vec::new(),
         };

@@ -15,7 +15,7 @@ use ash::vk;
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
-use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
+use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel};
 use crate::push_constants;
 
 /// Bit of the Adam flags word set by a non-finite gradient or parameter.
@@ -170,10 +170,10 @@ pub struct Tv {
     ctx: Context,
     kernel: Kernel,
     float_atomics: bool,
-    partials: Option<Buffer>,
+    partials: GrowBuffer,
     /// Partials buffers replaced by a larger one: a command buffer recorded but not yet
-    /// completed may still write them, so they live as long as `self` (growth by 1.5×
-    /// bounds them by twice the current one, 4 bytes per 256 voxels).
+    /// completed may still write them, so they live as long as `self` (growth by 1.25×
+    /// bounds them by 4× the current one, 4 bytes per 256 voxels).
     retired: Vec<Buffer>,
     lost: Buffer,
     last_groups: u32,
@@ -193,7 +193,7 @@ impl Tv {
             ctx: ctx.clone(),
             kernel: Kernel::new(ctx, src)?,
             float_atomics,
-            partials: None,
+            partials: GrowBuffer::new("tv.partials"),
             retired: Vec::new(),
             lost: ctx.buffer_from("tv.lost", &[0u32; 4])?,
             last_groups: 0,
@@ -223,13 +223,8 @@ impl Tv {
         }
         let groups = self.kernel.groups_1d(voxels);
         let need = u64::from(groups.max(1)) * 4;
-        if self.partials.as_ref().is_none_or(|b| b.size() < need) {
-            let size = need.saturating_add(need / 2);
-            let buf = self.ctx.buffer("tv.partials", size, Memory::Device)?;
-            if let Some(old) = self.partials.replace(buf) {
-                self.retired.push(old);
-            }
-        }
+        self.partials
+            .ensure_retiring(&self.ctx, need, &mut self.retired)?;
         self.last_groups = groups;
         if groups == 0 {
             return Ok(());
@@ -238,7 +233,7 @@ impl Tv {
             corners,
             geo,
             grad,
-            partials: self.partials.as_ref().map_or(0, |b| b.address()),
+            partials: self.partials.buffer().map_or(0, |b| b.address()),
             lost: self.lost.address(),
             voxels,
             weight,
@@ -255,7 +250,7 @@ impl Tv {
         }
         let buf = self
             .partials
-            .as_ref()
+            .buffer()
             .ok_or_else(|| Error::Gpu("TV partials missing".into()))?;
         let p: Vec<f32> = self.ctx.download(buf, 0, self.last_groups as usize)?;
         Ok(p.iter().map(|&x| f64::from(x)).sum())

@@ -1,0 +1,201 @@
+//! `svraster bench sort`: the onesweep radix sort against the CPU's sort_unstable, with
+//! every result checked.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+use std::time::Instant;
+
+use anyhow::{bail, Context as _};
+use rand::{RngCore, SeedableRng};
+use svraster::eval::median;
+use svraster::gpu::{recorder, Context, Timestamps};
+use svraster::sort::{passes_for, Count, RadixSort, SortScratch};
+
+use super::bench::stage_order;
+
+#[derive(serde::Serialize)]
+struct SortReport {
+    device: String,
+    n: u32,
+    bits: String,
+    passes: u32,
+    runs: u32,
+    median_ms: f64,
+    mkeys_per_s: f64,
+    wall_median_ms: f64,
+    stages_median_ms: BTreeMap<String, f64>,
+    verified: bool,
+    failed_runs: u32,
+    cpu_median_ms: f64,
+    cpu_mkeys_per_s: f64,
+    speedup_vs_cpu: f64,
+}
+
+pub(super) fn bench_sort(
+    ctx: &Context,
+    n: u32,
+    bits: Range<u32>,
+    runs: u32,
+    warmup: u32,
+    seed: u64,
+    json: bool,
+) -> anyhow::Result<()> {
+    if runs < 5 {
+        bail!("--runs must be at least 5 (medians of fewer runs are noise on a shared machine)");
+    }
+    if n == 0 {
+        bail!("--n must be at least 1");
+    }
+    // Sizes checked before anything is allocated: the device's largest buffer holds the
+    // keys (8 bytes each), and the host holds keys, values and two reference copies.
+    let max_alloc = ctx.info().max_memory_allocation_size;
+    if u64::from(n) * 8 > max_alloc {
+        bail!(
+            "--n {n}: the keys need {} MiB in one device buffer, above {}'s largest \
+             allocation ({} MiB); use --n {} or less",
+            (u64::from(n) * 8) >> 20,
+            ctx.info().name,
+            max_alloc >> 20,
+            max_alloc / 8
+        );
+    }
+    let host_bytes = u64::from(n) * (8 + 4 + 2 * 16);
+    let mut keys: Vec<u64> = Vec::new();
+    let mut values: Vec<u32> = Vec::new();
+    let mut probe: Vec<u8> = Vec::new();
+    if keys.try_reserve_exact(n as usize).is_err()
+        || values.try_reserve_exact(n as usize).is_err()
+        || probe.try_reserve_exact(host_bytes as usize).is_err()
+    {
+        bail!(
+            "--n {n}: the benchmark needs ~{} MiB of host memory for the keys and their \
+             CPU reference sorts, more than this machine can allocate; use a smaller --n",
+            host_bytes >> 20
+        );
+    }
+    drop(probe);
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
+    keys.extend((0..n).map(|_| rng.next_u64()));
+    values.extend(0..n);
+    let mask = if bits.end - bits.start == 64 {
+        u64::MAX
+    } else {
+        (1u64 << (bits.end - bits.start)) - 1
+    };
+    let lo = bits.start;
+
+    // CPU baseline in this process: sort_unstable on the same pairs, same key bits.
+    let mut cpu_ms = Vec::new();
+    let pairs: Vec<(u64, u32)> = keys.iter().copied().zip(values.iter().copied()).collect();
+    for i in 0..warmup + runs {
+        let mut p = pairs.clone();
+        let t = Instant::now();
+        p.sort_unstable_by_key(|&(k, _)| (k >> lo) & mask);
+        let dt = t.elapsed().as_secs_f64() * 1e3;
+        std::hint::black_box(&p);
+        if i >= warmup {
+            cpu_ms.push(dt);
+        }
+    }
+    // Reference for verification: the stable order.
+    let mut expect = pairs;
+    expect.sort_by_key(|&(k, _)| (k >> lo) & mask);
+    let (ek, ev): (Vec<u64>, Vec<u32>) = expect.into_iter().unzip();
+
+    let sorter = RadixSort::new(ctx, n).context("creating the radix sort")?;
+    let scratch = SortScratch::new(ctx, n)?;
+    let src_k = ctx.buffer_from("bench.keys.src", &keys)?;
+    let src_v = ctx.buffer_from("bench.values.src", &values)?;
+    let passes = passes_for(&bits);
+    let mut ts = Timestamps::new(ctx, 4 + passes)?;
+    let mut gpu_ms = Vec::new();
+    let mut wall_ms = Vec::new();
+    let mut stages: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    let mut failed = 0u32;
+    for i in 0..warmup + runs {
+        let t0 = Instant::now();
+        let which = ctx.submit_and_wait(|cmd| {
+            recorder::copy(ctx, cmd, &src_k, &scratch.keys, 0, 0, n as u64 * 8);
+            recorder::copy(ctx, cmd, &src_v, &scratch.values, 0, 0, n as u64 * 4);
+            recorder::barrier(ctx, cmd);
+            ts.begin(cmd);
+            let w = sorter.record(
+                cmd,
+                &scratch.as_buffers(),
+                Count::Host(n),
+                bits.clone(),
+                Some(&mut ts),
+            )?;
+            Ok(w)
+        })?;
+        let wall = t0.elapsed().as_secs_f64() * 1e3;
+        let st = ts.stages()?;
+        let (rk, rv) = scratch.result(which);
+        let gk: Vec<u64> = ctx.download(rk, 0, n as usize)?;
+        let gv: Vec<u32> = ctx.download(rv, 0, n as usize)?;
+        let errors = sorter.take_errors()?;
+        if gk != ek || gv != ev || errors != 0 {
+            failed += 1;
+            let bad = gk
+                .iter()
+                .zip(&ek)
+                .position(|(a, b)| a != b)
+                .or_else(|| gv.iter().zip(&ev).position(|(a, b)| a != b));
+            eprintln!("run {i}: WRONG RESULT (first mismatch at {bad:?}, error bits {errors:#x})");
+        }
+        if i >= warmup {
+            gpu_ms.push(st.iter().map(|s| s.1).sum());
+            wall_ms.push(wall);
+            for (name, ms) in st {
+                stages.entry(name).or_default().push(ms);
+            }
+        }
+    }
+    let med = median(&gpu_ms);
+    let cpu = median(&cpu_ms);
+    let report = SortReport {
+        device: ctx.info().name.clone(),
+        n,
+        bits: format!("{}..{}", bits.start, bits.end),
+        passes,
+        runs,
+        median_ms: med,
+        mkeys_per_s: n as f64 / med / 1e3,
+        wall_median_ms: median(&wall_ms),
+        stages_median_ms: stages.iter().map(|(k, v)| (k.clone(), median(v))).collect(),
+        verified: failed == 0,
+        failed_runs: failed,
+        cpu_median_ms: cpu,
+        cpu_mkeys_per_s: n as f64 / cpu / 1e3,
+        speedup_vs_cpu: cpu / med,
+    };
+    if json {
+        println!("{}", serde_json::to_string(&report)?);
+    } else {
+        println!(
+            "sort of {} u64 keys + u32 values, bits {} ({} passes) on {}",
+            n, report.bits, passes, report.device
+        );
+        println!("  GPU   median {:9.2} ms  {:8.2} Mkeys/s  (timestamps; wall {:.2} ms; {} runs after {} warm-up)", med, report.mkeys_per_s, report.wall_median_ms, runs, warmup);
+        let mut names: Vec<_> = report.stages_median_ms.iter().collect();
+        names.sort_by_key(|(k, _)| stage_order(k));
+        for (k, v) in names {
+            println!("    {k:<16} {v:9.2} ms");
+        }
+        println!(
+            "  CPU   median {:9.2} ms  {:8.2} Mkeys/s  (Rust sort_unstable, 1 thread)",
+            cpu, report.cpu_mkeys_per_s
+        );
+        println!("  GPU/CPU speed ratio {:.3}", report.speedup_vs_cpu);
+        println!(
+            "  verified: {} ({} of {} runs wrong)",
+            if failed == 0 { "yes" } else { "NO" },
+            failed,
+            warmup + runs
+        );
+    }
+    if failed > 0 {
+        bail!("{failed} run(s) produced a wrong result");
+    }
+    Ok(())
+}
