@@ -89,6 +89,7 @@ fn adaptive_schedule_follows_the_paper_and_scales() {
     assert_eq!(sub, vec![150, 250, 350, 450]);
     // The paper's learning rate unscaled needs 400 iterations: a 300-iteration run
     // never adapts.
+    c.set("lr_geo=0.025").unwrap();
     c.set("lr_geo_scale_max=1").unwrap();
     assert!(c.schedule().adapt.is_empty());
     c.set("layout=fixed").unwrap();

@@ -68,13 +68,22 @@ fn schedule_is_fractions_of_the_run() {
     c.set("sh_every=1.5").unwrap();
     assert!(c.validate().unwrap_err().to_string().contains("sh_every"));
     assert!(TrainConfig::preset("nope").is_err());
-    // The paper's values.
+    // The paper's values, but for the density rate (0.1, constant: see lr_geo_used).
     let d = TrainConfig::default();
     assert_eq!((d.beta1, d.beta2, d.eps), (0.1, 0.99, 1e-15));
-    assert_eq!((d.lr_geo, d.lr_sh0, d.lr_shs), (0.025, 0.01, 0.00025));
-    // The density rate used scales with the run length: the paper's at 20 000 iterations
-    // and beyond, sqrt(20 000 / iters) times it for shorter runs, at most 4 times.
+    assert_eq!((d.lr_geo, d.lr_sh0, d.lr_shs), (0.1, 0.01, 0.00025));
+    for iters in [300, 3_000, 20_000, 40_000] {
+        let c = TrainConfig {
+            iters,
+            ..TrainConfig::default()
+        };
+        assert_eq!(c.lr_geo_used(), 0.1, "{iters}");
+    }
+    // The paper's rate with the square-root rule: 0.025 at 20 000 iterations and beyond,
+    // sqrt(20 000 / iters) times it for shorter runs, at most 4 times.
     let mut c = TrainConfig::default();
+    c.set("lr_geo=0.025").unwrap();
+    c.set("lr_geo_scale_max=4").unwrap();
     for (iters, want) in [
         (40_000, 0.025),
         (20_000, 0.025),
