@@ -376,7 +376,14 @@ fn bench_train(
     }
     let train = svraster::data::load_split(data, "train", downscale, cfg.background)?;
     cfg.background = train.background;
-    // Time the full-model regime: SH at its final degree, supersampling on, all losses.
+    // Time the full-model regime: SH at its final degree, supersampling on, all losses
+    // (the distortion loss, off by default, at the paper's weight unless --set).
+    if !set
+        .iter()
+        .any(|kv| kv.trim_start().starts_with("lambda_dist"))
+    {
+        cfg.lambda_dist = 0.1;
+    }
     cfg.iters = 1;
     cfg.sh_every = 0.0;
     cfg.ss_from = 0.0;
