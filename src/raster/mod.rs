@@ -37,11 +37,13 @@ pub use counters::{WalkCounters, WorkCounters};
 pub(crate) use params::AUX_CHANNELS;
 use params::{ChunkPush, FrameParams, ParamsPush, SetupPush};
 pub use plan::FrameGeometry;
-use plan::{Grow, Plan};
+use plan::Plan;
 pub use readback::{FrameStats, Image};
 
 use crate::camera::Camera;
-use crate::gpu::{glsl, kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
+use crate::gpu::{
+    glsl, kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Memory, Timestamps,
+};
 use crate::scan::PrefixScan;
 use crate::scene::{Scene, MAX_LEVEL};
 use crate::sort::{Count, RadixSort, SortBuffers, Sorted};
@@ -110,27 +112,27 @@ pub struct Renderer {
     chunk_size: u32,
     chunks: u32,
     // per voxel
-    bbox: Grow,
-    signs: Grow,
-    counts: Grow,
-    offsets: Grow,
-    geo8: Grow,
-    rgb: Grow,
-    nrm: Grow,
-    cs: Grow,
+    bbox: GrowBuffer,
+    signs: GrowBuffer,
+    counts: GrowBuffer,
+    offsets: GrowBuffer,
+    geo8: GrowBuffer,
+    rgb: GrowBuffer,
+    nrm: GrowBuffer,
+    cs: GrowBuffer,
     // entries
-    keys: Grow,
-    vals: Grow,
-    keys_alt: Grow,
-    vals_alt: Grow,
+    keys: GrowBuffer,
+    vals: GrowBuffer,
+    keys_alt: GrowBuffer,
+    vals_alt: GrowBuffer,
     // tiles / pixels
-    ranges: Grow,
-    img: Grow,
-    med_id: Grow,
-    med_t: Grow,
-    out_img: Grow,
-    last_id: Grow,
-    aux: Grow,
+    ranges: GrowBuffer,
+    img: GrowBuffer,
+    med_id: GrowBuffer,
+    med_t: GrowBuffer,
+    out_img: GrowBuffer,
+    last_id: GrowBuffer,
+    aux: GrowBuffer,
     stats: Buffer,
     params: Buffer,
     last: Option<Plan>,
@@ -172,25 +174,25 @@ impl Renderer {
             entry_cap: 0,
             chunk_size: ctx.info().forward_chunk_entries(),
             chunks: 1,
-            bbox: Grow::new("raster.bbox"),
-            signs: Grow::new("raster.signs"),
-            counts: Grow::new("raster.counts"),
-            offsets: Grow::new("raster.offsets"),
-            geo8: Grow::new("raster.geo8"),
-            rgb: Grow::new("raster.rgb"),
-            nrm: Grow::new("raster.normal"),
-            cs: Grow::new("raster.centre-size"),
-            keys: Grow::new("raster.keys"),
-            vals: Grow::new("raster.values"),
-            keys_alt: Grow::new("raster.keys-alt"),
-            vals_alt: Grow::new("raster.values-alt"),
-            ranges: Grow::new("raster.tile-ranges"),
-            img: Grow::new("raster.image"),
-            med_id: Grow::new("raster.median-id"),
-            med_t: Grow::new("raster.median-t"),
-            out_img: Grow::new("raster.out-image"),
-            last_id: Grow::new("raster.last-contributor"),
-            aux: Grow::new("raster.aux"),
+            bbox: GrowBuffer::new("raster.bbox"),
+            signs: GrowBuffer::new("raster.signs"),
+            counts: GrowBuffer::new("raster.counts"),
+            offsets: GrowBuffer::new("raster.offsets"),
+            geo8: GrowBuffer::new("raster.geo8"),
+            rgb: GrowBuffer::new("raster.rgb"),
+            nrm: GrowBuffer::new("raster.normal"),
+            cs: GrowBuffer::new("raster.centre-size"),
+            keys: GrowBuffer::new("raster.keys"),
+            vals: GrowBuffer::new("raster.values"),
+            keys_alt: GrowBuffer::new("raster.keys-alt"),
+            vals_alt: GrowBuffer::new("raster.values-alt"),
+            ranges: GrowBuffer::new("raster.tile-ranges"),
+            img: GrowBuffer::new("raster.image"),
+            med_id: GrowBuffer::new("raster.median-id"),
+            med_t: GrowBuffer::new("raster.median-t"),
+            out_img: GrowBuffer::new("raster.out-image"),
+            last_id: GrowBuffer::new("raster.last-contributor"),
+            aux: GrowBuffer::new("raster.aux"),
             stats: ctx.buffer("raster.stats", STATS_WORDS as u64 * 4, Memory::Device)?,
             params: ctx.buffer(
                 "raster.params",

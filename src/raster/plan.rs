@@ -3,7 +3,6 @@
 
 use super::{RenderOptions, Renderer, AUX_CHANNELS, CHANNELS, MAX_IMAGE_EDGE, TILE};
 use crate::camera::Camera;
-pub(super) use crate::gpu::GrowBuffer as Grow;
 use crate::scan::PrefixScan;
 use crate::scene::SceneGpu;
 use crate::sort::RadixSort;
