@@ -6,6 +6,8 @@
 //! Blender/NeRF-synthetic files store OpenGL cameras (y up, looking down −z); the loader
 //! converts them with [`Camera::from_opengl`].
 
+use glam::{DMat3, DVec3};
+
 /// A pinhole camera with its image size.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Camera {
@@ -68,9 +70,10 @@ impl Camera {
         width: u32,
         height: u32,
     ) -> Camera {
-        let z = normalize(sub(target, eye));
-        let x = normalize(cross(z, up));
-        let y = cross(z, x);
+        let (eye, target, up) = (DVec3::from(eye), DVec3::from(target), DVec3::from(up));
+        let z = unit(target - eye);
+        let x = unit(z.cross(up));
+        let y = z.cross(x);
         let c2w = std::array::from_fn(|r| [x[r], y[r], z[r], eye[r]]);
         Camera::centred(c2w, fov_x, width, height)
     }
@@ -104,22 +107,25 @@ impl Camera {
     /// World-space ray of pixel `(px, py)` through its centre: origin and unit direction.
     pub fn pixel_ray(&self, px: u32, py: u32) -> ([f64; 3], [f64; 3]) {
         let d = self.camera_dir(px as f64 + 0.5, py as f64 + 0.5);
-        (self.origin(), normalize(self.rotate(d)))
+        (self.origin(), unit(self.rotate(d).into()).to_array())
     }
 
     /// Camera-to-world rotation of a vector.
     pub fn rotate(&self, d: [f64; 3]) -> [f64; 3] {
-        std::array::from_fn(|r| {
-            self.c2w[r][0] * d[0] + self.c2w[r][1] * d[1] + self.c2w[r][2] * d[2]
-        })
+        (self.rotation() * DVec3::from(d)).to_array()
+    }
+
+    /// Camera-to-world rotation (columns = camera axes in world).
+    pub fn rotation(&self) -> DMat3 {
+        DMat3::from_cols_array_2d(&std::array::from_fn(|c| {
+            std::array::from_fn(|r| self.c2w[r][c])
+        }))
     }
 
     /// World-to-camera transform of a point.
     pub fn world_to_camera(&self, p: [f64; 3]) -> [f64; 3] {
-        let q = sub(p, self.origin());
-        std::array::from_fn(|c| {
-            self.c2w[0][c] * q[0] + self.c2w[1][c] * q[1] + self.c2w[2][c] * q[2]
-        })
+        let q = DVec3::from(p) - DVec3::from(self.origin());
+        (self.rotation().transpose() * q).to_array()
     }
 
     /// Checks the camera is usable; the message names the problem.
@@ -149,19 +155,7 @@ impl Camera {
     }
 }
 
-pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-pub(crate) fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
-pub(crate) fn normalize(a: [f64; 3]) -> [f64; 3] {
-    let n = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
-    [a[0] / n, a[1] / n, a[2] / n]
+/// `v` scaled to unit length (a true division, as the f64 references in tests/ do).
+fn unit(v: DVec3) -> DVec3 {
+    v / v.length()
 }

@@ -578,7 +578,7 @@ fn pixel_hits(cam: &Camera, px: u32, py: u32, n: u32) -> (bool, bool) {
             let v = py as f64 + j as f64 / (n - 1) as f64;
             let d = cam.rotate(cam.camera_dir(u, v));
             let l = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
-            let hit = demo::ray_hit(cam.origin(), d.map(|x| x / l)).is_some();
+            let hit = demo::ray_hit(cam.origin().into(), d.map(|x| x / l).into()).is_some();
             any |= hit;
             all &= hit;
         }
@@ -625,7 +625,7 @@ fn demo_dataset_roundtrip() {
                     let i = (py * 32 + px) as usize;
                     let a = rgba[i][3];
                     let (o, d) = cam.pixel_ray(px, py);
-                    let centre = demo::ray_hit(o, d).is_some();
+                    let centre = demo::ray_hit(o.into(), d.into()).is_some();
                     let (any, all) = pixel_hits(cam, px, py, 13);
                     if centre {
                         assert!(a > 0.0, "{split} r_{k} ({px},{py}): centre hits, alpha 0");
@@ -690,8 +690,8 @@ fn demo_is_deterministic() {
 fn demo_scene_is_inside_the_cube_and_view_dependent() {
     for p in PRIMITIVES {
         let (c, r) = match p.shape {
-            demo::Shape::Sphere { center, radius } => (center, [radius; 3]),
-            demo::Shape::Box { center, half } => (center, half),
+            demo::Shape::Sphere { center, radius } => (center.to_array(), [radius; 3]),
+            demo::Shape::Box { center, half } => (center.to_array(), half.to_array()),
         };
         for a in 0..3 {
             assert!(
@@ -704,23 +704,23 @@ fn demo_scene_is_inside_the_cube_and_view_dependent() {
     // The glossy red sphere's point facing the light: looking along the mirror
     // direction shows a highlight, a grazing view does not.
     let (center, radius) = match PRIMITIVES[1].shape {
-        demo::Shape::Sphere { center, radius } => (center, radius),
+        demo::Shape::Sphere { center, radius } => (center.to_array(), radius),
         _ => unreachable!(),
     };
-    let n = demo::light_dir();
+    let n = demo::light_dir().to_array();
     let point: [f64; 3] = std::array::from_fn(|a| center[a] + radius * n[a]);
     let hit = demo::Hit {
         t: 1.0,
-        point,
-        normal: n,
+        point: point.into(),
+        normal: n.into(),
         primitive: 1,
     };
-    let head_on = demo::shade(&hit, n.map(|v| -v));
+    let head_on = demo::shade(&hit, n.map(|v| -v).into());
     let side = [n[1], -n[0], 0.0];
     let l = (side[0] * side[0] + side[1] * side[1]).sqrt();
     let grazing: [f64; 3] = std::array::from_fn(|a| -0.3 * n[a] - side[a] / l);
     let gl = (grazing.iter().map(|v| v * v).sum::<f64>()).sqrt();
-    let oblique = demo::shade(&hit, grazing.map(|v| v / gl));
+    let oblique = demo::shade(&hit, grazing.map(|v| v / gl).into());
     assert!(head_on[1] - oblique[1] > 0.5, "{head_on:?} vs {oblique:?}");
 }
 
@@ -796,7 +796,7 @@ fn voxelize_demo_scene() {
         );
         // Kept voxels meet or lie inside the geometry.
         let c = scene.voxel_center(i);
-        assert!(demo::signed_distance(c) <= 0.5 * s * 3f64.sqrt() + 1e-12);
+        assert!(demo::signed_distance(c.into()) <= 0.5 * s * 3f64.sqrt() + 1e-12);
     }
     let scene3 = demo::voxelize(4, 3).unwrap();
     assert_eq!(scene3.shs.len(), scene3.num_voxels() * 15 * 3);
@@ -814,8 +814,8 @@ fn voxelized_surfaces_are_opaque_and_coloured() {
     // renderer's alpha = 1 − exp(−100 · length · density).
     for (k, prim) in PRIMITIVES.iter().enumerate() {
         let center = match prim.shape {
-            demo::Shape::Sphere { center, .. } => center,
-            demo::Shape::Box { center, .. } => center,
+            demo::Shape::Sphere { center, .. } => center.to_array(),
+            demo::Shape::Box { center, .. } => center.to_array(),
         };
         // Target inside the primitive and direction towards the viewer, chosen so the
         // primitive is the first thing hit.
@@ -823,11 +823,11 @@ fn voxelized_surfaces_are_opaque_and_coloured() {
             "pedestal" => ([0.0, 0.65, -0.6], [0.0, 0.0, 1.0]),
             "green box" => (center, [1.0, 0.0, 0.0]),
             "yellow box" => (center, [0.0, 0.0, 1.0]),
-            _ => (center, demo::light_dir()),
+            _ => (center, demo::light_dir().to_array()),
         };
         let start: [f64; 3] = std::array::from_fn(|a| center[a] + 1.2 * dir[a]);
         let ray = dir.map(|v| -v);
-        let hit = demo::ray_hit(start, ray).unwrap();
+        let hit = demo::ray_hit(start.into(), ray.into()).unwrap();
         let step = w / 50.0;
         let mut tau = 0.0;
         let mut t = 0.0;

@@ -262,3 +262,68 @@ fn a_grid_too_large_for_the_device_is_refused_before_it_is_built() {
     let _ = std::fs::remove_dir_all(&dir);
     finish(&ctx);
 }
+
+/// Training views packed into several device buffers land whole and in order: every
+/// view read back at its (buffer, offset) is its frame in planar RGB, chunks hold at
+/// most the requested bytes (a view larger than that gets a chunk of its own), and the
+/// address is the buffer's plus the offset.
+#[test]
+fn training_views_pack_into_chunks() {
+    use svraster::data::{Dataset, Frame};
+    use svraster::train::views::TrainViews;
+    let ctx = context();
+    let (w, h) = (7u32, 5u32);
+    let np = (w * h) as usize;
+    let mut rng = common::Rng(11);
+    let frames: Vec<Frame> = (0..5)
+        .map(|k| Frame {
+            name: format!("v{k}"),
+            camera: svraster::data::Camera::look_at(
+                [0.0, -4.0, 0.0],
+                [0.0; 3],
+                [0.0, 0.0, 1.0],
+                0.7,
+                w,
+                h,
+            ),
+            rgb: (0..np)
+                .map(|_| std::array::from_fn(|_| rng.unit() as f32))
+                .collect(),
+        })
+        .collect();
+    let data = Dataset {
+        frames,
+        width: w,
+        height: h,
+        background: [1.0; 3],
+        split: "train".into(),
+    };
+    let view_bytes = (3 * np * 4) as u64;
+    for (chunk_bytes, want_chunks) in [(2 * view_bytes + 7, 3), (view_bytes / 2, 5), (1 << 30, 1)] {
+        let views = TrainViews::upload(&ctx, &data, chunk_bytes).unwrap();
+        assert_eq!(views.len(), 5);
+        assert_eq!(views.chunks(), want_chunks, "chunk limit {chunk_bytes}");
+        for (k, f) in data.frames.iter().enumerate() {
+            let (buf, offset) = views.locate(k);
+            assert!(offset + view_bytes <= buf.size());
+            assert!(want_chunks == 5 || buf.size() <= chunk_bytes);
+            assert_eq!(views.address(k), buf.address() + offset);
+            let got: Vec<f32> = ctx.download(buf, offset, 3 * np).unwrap();
+            for p in 0..np {
+                for c in 0..3 {
+                    assert_eq!(
+                        got[c * np + p],
+                        f.rgb[p][c],
+                        "view {k} pixel {p} channel {c}"
+                    );
+                }
+            }
+        }
+    }
+    // A frame of the wrong size is named.
+    let mut bad = data.clone();
+    bad.frames[3].rgb.pop();
+    let e = TrainViews::upload(&ctx, &bad, 1 << 20).err().unwrap();
+    assert!(e.to_string().contains("v3"), "{e}");
+    finish(&ctx);
+}

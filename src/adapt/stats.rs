@@ -115,7 +115,7 @@ impl StatsPass {
         self.min_interval.ensure(&self.ctx, bytes)?;
         let (mw, mi) = self.buffers()?;
         self.ctx.submit_and_wait(|cmd| {
-            recorder::fill(&self.ctx, cmd, mw, 0, vk::WHOLE_SIZE, 0);
+            recorder::zero(&self.ctx, cmd, mw);
             recorder::fill(
                 &self.ctx,
                 cmd,

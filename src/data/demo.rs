@@ -14,13 +14,13 @@
 
 use std::path::{Path, PathBuf};
 
+use glam::DVec3;
 use rand::{Rng, SeedableRng};
 use rand_pcg::Pcg64;
 
 use super::blender::parse_matrix;
 use super::image::{io_error, save_rgba_png, write_atomic};
 use super::Camera;
-use crate::camera::normalize;
 use crate::scene::{key_coords, octpath_from_ijk, Scene, MAX_SH_DEGREE};
 use crate::{Error, Result};
 
@@ -46,21 +46,21 @@ pub const MAX_VOXELIZE_LEVEL: u32 = 11;
 pub const RAW_EMPTY: f32 = -10.0;
 
 /// Unit vector from the surface towards the light.
-pub fn light_dir() -> [f64; 3] {
-    normalize([0.45, -0.35, 0.82])
+pub fn light_dir() -> DVec3 {
+    unit(DVec3::new(0.45, -0.35, 0.82))
 }
 
 /// Geometry of a primitive.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Shape {
     Sphere {
-        center: [f64; 3],
+        center: DVec3,
         radius: f64,
     },
     /// Axis-aligned box.
     Box {
-        center: [f64; 3],
-        half: [f64; 3],
+        center: DVec3,
+        half: DVec3,
     },
 }
 
@@ -70,7 +70,7 @@ pub struct Primitive {
     pub name: &'static str,
     pub shape: Shape,
     /// Diffuse albedo.
-    pub color: [f64; 3],
+    pub color: DVec3,
     /// Specular (white highlight) strength.
     pub specular: f64,
     /// Blinn-Phong exponent.
@@ -82,60 +82,60 @@ pub const PRIMITIVES: [Primitive; 6] = [
     Primitive {
         name: "pedestal",
         shape: Shape::Box {
-            center: [0.0, 0.0, -0.6],
-            half: [0.8, 0.8, 0.1],
+            center: DVec3::new(0.0, 0.0, -0.6),
+            half: DVec3::new(0.8, 0.8, 0.1),
         },
-        color: [0.72, 0.72, 0.75],
+        color: DVec3::new(0.72, 0.72, 0.75),
         specular: 0.05,
         shininess: 8.0,
     },
     Primitive {
         name: "glossy red sphere",
         shape: Shape::Sphere {
-            center: [-0.3, -0.3, -0.1],
+            center: DVec3::new(-0.3, -0.3, -0.1),
             radius: 0.4,
         },
-        color: [0.85, 0.12, 0.1],
+        color: DVec3::new(0.85, 0.12, 0.1),
         specular: 0.9,
         shininess: 80.0,
     },
     Primitive {
         name: "green box",
         shape: Shape::Box {
-            center: [0.45, -0.25, -0.2],
-            half: [0.25, 0.25, 0.3],
+            center: DVec3::new(0.45, -0.25, -0.2),
+            half: DVec3::new(0.25, 0.25, 0.3),
         },
-        color: [0.2, 0.7, 0.25],
+        color: DVec3::new(0.2, 0.7, 0.25),
         specular: 0.1,
         shininess: 10.0,
     },
     Primitive {
         name: "orange sphere",
         shape: Shape::Sphere {
-            center: [0.45, -0.25, 0.28],
+            center: DVec3::new(0.45, -0.25, 0.28),
             radius: 0.18,
         },
-        color: [0.9, 0.5, 0.1],
+        color: DVec3::new(0.9, 0.5, 0.1),
         specular: 0.5,
         shininess: 40.0,
     },
     Primitive {
         name: "blue sphere",
         shape: Shape::Sphere {
-            center: [0.3, 0.5, -0.22],
+            center: DVec3::new(0.3, 0.5, -0.22),
             radius: 0.28,
         },
-        color: [0.15, 0.3, 0.9],
+        color: DVec3::new(0.15, 0.3, 0.9),
         specular: 0.4,
         shininess: 30.0,
     },
     Primitive {
         name: "yellow box",
         shape: Shape::Box {
-            center: [-0.4, 0.5, -0.05],
-            half: [0.18, 0.18, 0.45],
+            center: DVec3::new(-0.4, 0.5, -0.05),
+            half: DVec3::new(0.18, 0.18, 0.45),
         },
-        color: [0.95, 0.8, 0.2],
+        color: DVec3::new(0.95, 0.8, 0.2),
         specular: 0.1,
         shininess: 10.0,
     },
@@ -143,13 +143,13 @@ pub const PRIMITIVES: [Primitive; 6] = [
 
 impl Shape {
     /// Exact signed distance (negative inside).
-    pub fn signed_distance(&self, p: [f64; 3]) -> f64 {
+    pub fn signed_distance(&self, p: DVec3) -> f64 {
         match *self {
-            Shape::Sphere { center, radius } => len(sub(p, center)) - radius,
+            Shape::Sphere { center, radius } => (p - center).length() - radius,
             Shape::Box { center, half } => {
-                let q: [f64; 3] = std::array::from_fn(|a| (p[a] - center[a]).abs() - half[a]);
-                let outside = len(q.map(|v| v.max(0.0)));
-                let inside = q[0].max(q[1]).max(q[2]).min(0.0);
+                let q = (p - center).abs() - half;
+                let outside = q.max(DVec3::ZERO).length();
+                let inside = q.max_element().min(0.0);
                 outside + inside
             }
         }
@@ -157,27 +157,26 @@ impl Shape {
 
     /// Outward unit normal of the surface point nearest to `p` (the gradient of the
     /// signed distance).
-    pub fn normal(&self, p: [f64; 3]) -> [f64; 3] {
+    pub fn normal(&self, p: DVec3) -> DVec3 {
         match *self {
             Shape::Sphere { center, .. } => {
-                let v = sub(p, center);
-                if len(v) > 0.0 {
-                    normalize(v)
+                let v = p - center;
+                if v.length() > 0.0 {
+                    unit(v)
                 } else {
-                    [0.0, 0.0, 1.0]
+                    DVec3::Z
                 }
             }
             Shape::Box { center, half } => {
-                let r = sub(p, center);
-                let sign = |v: f64| if v < 0.0 { -1.0 } else { 1.0 };
-                let q: [f64; 3] = std::array::from_fn(|a| r[a].abs() - half[a]);
-                if q.iter().any(|&v| v > 0.0) {
-                    let g: [f64; 3] = std::array::from_fn(|a| q[a].max(0.0) * sign(r[a]));
-                    normalize(g)
+                let r = p - center;
+                let sign = DVec3::select(r.cmplt(DVec3::ZERO), -DVec3::ONE, DVec3::ONE);
+                let q = r.abs() - half;
+                if q.cmpgt(DVec3::ZERO).any() {
+                    unit(q.max(DVec3::ZERO) * sign)
                 } else {
                     let a = (0..3).max_by(|&i, &j| q[i].total_cmp(&q[j])).unwrap_or(2);
-                    let mut n = [0.0; 3];
-                    n[a] = sign(r[a]);
+                    let mut n = DVec3::ZERO;
+                    n[a] = sign[a];
                     n
                 }
             }
@@ -186,33 +185,33 @@ impl Shape {
 
     /// First intersection of the ray `o + t·d` (unit `d`) with `t > t_min`: distance and
     /// outward unit normal.
-    pub fn intersect(&self, o: [f64; 3], d: [f64; 3], t_min: f64) -> Option<(f64, [f64; 3])> {
+    pub fn intersect(&self, o: DVec3, d: DVec3, t_min: f64) -> Option<(f64, DVec3)> {
         match *self {
             Shape::Sphere { center, radius } => {
-                let oc = sub(o, center);
-                let b = dot(oc, d);
-                let c = dot(oc, oc) - radius * radius;
+                let oc = o - center;
+                let b = oc.dot(d);
+                let c = oc.dot(oc) - radius * radius;
                 let disc = b * b - c;
                 if disc < 0.0 {
                     return None;
                 }
                 let s = disc.sqrt();
                 let t = [-b - s, -b + s].into_iter().find(|&t| t > t_min)?;
-                let p = add(o, scale(d, t));
-                Some((t, scale(sub(p, center), 1.0 / radius)))
+                let p = o + d * t;
+                Some((t, (p - center) * (1.0 / radius)))
             }
             Shape::Box { center, half } => {
+                let (lo, hi) = (center - half, center + half);
                 let (mut t0, mut t1) = (f64::NEG_INFINITY, f64::INFINITY);
                 let (mut a0, mut a1) = (0usize, 0usize);
                 for a in 0..3 {
-                    let (lo, hi) = (center[a] - half[a], center[a] + half[a]);
                     if d[a] == 0.0 {
-                        if o[a] < lo || o[a] > hi {
+                        if o[a] < lo[a] || o[a] > hi[a] {
                             return None;
                         }
                         continue;
                     }
-                    let (mut ta, mut tb) = ((lo - o[a]) / d[a], (hi - o[a]) / d[a]);
+                    let (mut ta, mut tb) = ((lo[a] - o[a]) / d[a], (hi[a] - o[a]) / d[a]);
                     if ta > tb {
                         std::mem::swap(&mut ta, &mut tb);
                     }
@@ -229,7 +228,7 @@ impl Shape {
                     return None;
                 }
                 let axis_normal = |a: usize, s: f64| {
-                    let mut n = [0.0; 3];
+                    let mut n = DVec3::ZERO;
                     n[a] = s;
                     n
                 };
@@ -250,23 +249,23 @@ impl Shape {
 pub struct Hit {
     /// Distance along the (unit) ray direction.
     pub t: f64,
-    pub point: [f64; 3],
+    pub point: DVec3,
     /// Outward unit surface normal.
-    pub normal: [f64; 3],
+    pub normal: DVec3,
     /// Index into [`PRIMITIVES`].
     pub primitive: usize,
 }
 
 /// Analytic hit test: the nearest intersection of the ray `origin + t·dir` (`dir` of
 /// unit length, `t > 0`) with the demo primitives, if any.
-pub fn ray_hit(origin: [f64; 3], dir: [f64; 3]) -> Option<Hit> {
+pub fn ray_hit(origin: DVec3, dir: DVec3) -> Option<Hit> {
     let mut best: Option<Hit> = None;
     for (i, prim) in PRIMITIVES.iter().enumerate() {
         if let Some((t, normal)) = prim.shape.intersect(origin, dir, 1e-9) {
             if best.is_none_or(|b| t < b.t) {
                 best = Some(Hit {
                     t,
-                    point: add(origin, scale(dir, t)),
+                    point: origin + dir * t,
                     normal,
                     primitive: i,
                 });
@@ -278,12 +277,12 @@ pub fn ray_hit(origin: [f64; 3], dir: [f64; 3]) -> Option<Hit> {
 
 /// Signed distance to the union of the primitives (exact outside, a lower bound of the
 /// distance to the surface inside).
-pub fn signed_distance(p: [f64; 3]) -> f64 {
+pub fn signed_distance(p: DVec3) -> f64 {
     nearest_primitive(p).1
 }
 
 /// The primitive with the smallest signed distance at `p`, and that distance.
-pub fn nearest_primitive(p: [f64; 3]) -> (usize, f64) {
+pub fn nearest_primitive(p: DVec3) -> (usize, f64) {
     let mut best = (0, f64::INFINITY);
     for (i, prim) in PRIMITIVES.iter().enumerate() {
         let d = prim.shape.signed_distance(p);
@@ -295,57 +294,52 @@ pub fn nearest_primitive(p: [f64; 3]) -> (usize, f64) {
 }
 
 /// Whether the light is blocked seen from surface point `p` with normal `n`.
-fn in_shadow(p: [f64; 3], n: [f64; 3]) -> bool {
-    ray_hit(add(p, scale(n, 1e-6)), light_dir()).is_some()
+fn in_shadow(p: DVec3, n: DVec3) -> bool {
+    ray_hit(p + n * 1e-6, light_dir()).is_some()
 }
 
 /// Shaded colour of a hit seen along unit direction `dir`: ambient + shadowed diffuse
 /// + Blinn-Phong highlight, clamped to `[0, 1]`.
-pub fn shade(hit: &Hit, dir: [f64; 3]) -> [f64; 3] {
+pub fn shade(hit: &Hit, dir: DVec3) -> DVec3 {
     let prim = &PRIMITIVES[hit.primitive];
     let n = hit.normal;
     let l = light_dir();
-    let ndl = dot(n, l).max(0.0);
+    let ndl = n.dot(l).max(0.0);
     let lit = if ndl > 0.0 && !in_shadow(hit.point, n) {
         1.0
     } else {
         0.0
     };
-    let h = normalize(sub(l, dir));
-    let spec = prim.specular * dot(n, h).max(0.0).powf(prim.shininess) * lit;
-    std::array::from_fn(|c| {
-        (prim.color[c] * (AMBIENT + DIFFUSE * ndl * lit) + spec).clamp(0.0, 1.0)
-    })
+    let h = unit(l - dir);
+    let spec = prim.specular * n.dot(h).max(0.0).powf(prim.shininess) * lit;
+    (prim.color * (AMBIENT + DIFFUSE * ndl * lit) + spec).clamp(DVec3::ZERO, DVec3::ONE)
 }
 
 /// Ray traces the demo scene for `camera`: row-major straight-alpha RGBA, alpha the
 /// fraction of the pixel's [`SUPERSAMPLE`]² sub-samples that hit a primitive (0 on the
 /// transparent background). Rays are built as [`Camera::pixel_ray`] builds them.
 pub fn render_rgba(camera: &Camera) -> Vec<[f32; 4]> {
-    let o = camera.origin();
+    let o = DVec3::from(camera.origin());
     let n = SUPERSAMPLE;
     let mut out = Vec::with_capacity(camera.width as usize * camera.height as usize);
     for py in 0..camera.height {
         for px in 0..camera.width {
-            let mut sum = [0.0f64; 3];
+            let mut sum = DVec3::ZERO;
             let mut hits = 0u32;
             for sy in 0..n {
                 for sx in 0..n {
                     let u = px as f64 + (sx as f64 + 0.5) / n as f64;
                     let v = py as f64 + (sy as f64 + 0.5) / n as f64;
-                    let d = normalize(camera.rotate(camera.camera_dir(u, v)));
+                    let d = unit(camera.rotate(camera.camera_dir(u, v)).into());
                     if let Some(hit) = ray_hit(o, d) {
-                        let c = shade(&hit, d);
-                        for k in 0..3 {
-                            sum[k] += c[k];
-                        }
+                        sum += shade(&hit, d);
                         hits += 1;
                     }
                 }
             }
             let a = hits as f64 / (n * n) as f64;
             let rgb = if hits > 0 {
-                sum.map(|s| (s / hits as f64) as f32)
+                (sum / hits as f64).as_vec3().to_array()
             } else {
                 [0.0; 3]
             };
@@ -559,15 +553,14 @@ pub fn raw_density(d: f64, w: f64) -> f32 {
 
 /// Diffuse colour of primitive `prim` at surface point `p` with normal `n` (ambient +
 /// shadowed directional light, no highlight), clamped to `[0, 1]`.
-pub fn diffuse_color(prim: usize, p: [f64; 3], n: [f64; 3]) -> [f64; 3] {
-    let ndl = dot(n, light_dir()).max(0.0);
+pub fn diffuse_color(prim: usize, p: DVec3, n: DVec3) -> DVec3 {
+    let ndl = n.dot(light_dir()).max(0.0);
     let lit = if ndl > 0.0 && !in_shadow(p, n) {
         1.0
     } else {
         0.0
     };
-    let c = PRIMITIVES[prim].color;
-    std::array::from_fn(|k| (c[k] * (AMBIENT + DIFFUSE * ndl * lit)).clamp(0.0, 1.0))
+    (PRIMITIVES[prim].color * (AMBIENT + DIFFUSE * ndl * lit)).clamp(DVec3::ZERO, DVec3::ONE)
 }
 
 /// Builds a sparse-voxel [`Scene`] of the demo primitives directly (no training).
@@ -592,7 +585,7 @@ pub fn voxelize(max_level: u32, sh_degree: u32) -> Result<Scene> {
         )));
     }
     let extent = VOXEL_EXTENT as f64;
-    let lo: [f64; 3] = std::array::from_fn(|a| VOXEL_CENTER[a] as f64 - 0.5 * extent);
+    let lo = DVec3::from(VOXEL_CENTER.map(f64::from)) - 0.5 * extent;
     let mut octpath = Vec::new();
     let mut octlevel = Vec::new();
     let mut frontier: Vec<[u32; 3]> = (0..8u32).map(|c| [c >> 2, (c >> 1) & 1, c & 1]).collect();
@@ -601,7 +594,7 @@ pub fn voxelize(max_level: u32, sh_degree: u32) -> Result<Scene> {
         let half_diag = 0.5 * size * 3f64.sqrt();
         let mut next = Vec::new();
         for ijk in frontier {
-            let c: [f64; 3] = std::array::from_fn(|a| lo[a] + (ijk[a] as f64 + 0.5) * size);
+            let c = lo + (DVec3::from(ijk.map(f64::from)) + 0.5) * size;
             let d = signed_distance(c);
             if d.abs() <= half_diag && level < max_level {
                 for k in 0..8u32 {
@@ -631,36 +624,20 @@ pub fn voxelize(max_level: u32, sh_degree: u32) -> Result<Scene> {
     let w = extent / (1u64 << max_level) as f64;
     for (g, &key) in scene.grid_keys.iter().enumerate() {
         let p = scene.fine_to_world(key_coords(key));
-        scene.geo[g] = raw_density(signed_distance(p), w);
+        scene.geo[g] = raw_density(signed_distance(p.into()), w);
     }
     for i in 0..scene.num_voxels() {
-        let c = scene.voxel_center(i);
+        let c = DVec3::from(scene.voxel_center(i));
         let (prim, d) = nearest_primitive(c);
         let n = PRIMITIVES[prim].shape.normal(c);
-        let surface = sub(c, scale(n, d));
-        let color = diffuse_color(prim, surface, n);
-        scene.sh0[i] = color.map(|v| ((v - 0.5) / SH_C0) as f32);
+        let color = diffuse_color(prim, c - n * d, n);
+        scene.sh0[i] = ((color - 0.5) / SH_C0).as_vec3().to_array();
     }
     scene.validate()?;
     Ok(scene)
 }
 
-fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
-}
-
-fn add(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
-    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
-}
-
-fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
-    [a[0] * s, a[1] * s, a[2] * s]
-}
-
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
-fn len(a: [f64; 3]) -> f64 {
-    dot(a, a).sqrt()
+/// `v` scaled to unit length (a true division, as the f64 references in tests/ do).
+fn unit(v: DVec3) -> DVec3 {
+    v / v.length()
 }

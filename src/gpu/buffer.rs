@@ -189,6 +189,16 @@ impl Context {
         Ok(buf)
     }
 
+    /// A device buffer of `size` bytes (at least 4) filled with zeros before it is returned.
+    pub fn zeroed_buffer(&self, name: &str, size: u64) -> Result<Buffer> {
+        let buf = self.buffer(name, size.max(4), Memory::Device)?;
+        self.submit_and_wait(|cmd| {
+            super::recorder::zero(self, cmd, &buf);
+            Ok(())
+        })?;
+        Ok(buf)
+    }
+
     /// Copies `data` into `dst` at byte `offset` through a staging buffer and waits.
     pub fn upload<T: bytemuck::Pod>(&self, dst: &Buffer, offset: u64, data: &[T]) -> Result<()> {
         let bytes: &[u8] = bytemuck::cast_slice(data);

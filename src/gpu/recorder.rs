@@ -49,6 +49,11 @@ pub fn fill(
     };
 }
 
+/// Records zeroing the whole of `buf`.
+pub fn zero(ctx: &Context, cmd: vk::CommandBuffer, buf: &Buffer) {
+    fill(ctx, cmd, buf, 0, vk::WHOLE_SIZE, 0);
+}
+
 /// Records a buffer-to-buffer copy.
 pub fn copy(
     ctx: &Context,

@@ -424,10 +424,10 @@ impl Renderer {
         unsafe {
             dev.cmd_update_buffer(cmd, self.params.raw(), 0, bytemuck::bytes_of(&params));
         }
-        recorder::fill(&ctx, cmd, &self.stats, 0, vk::WHOLE_SIZE, 0);
+        recorder::zero(&ctx, cmd, &self.stats);
         recorder::fill(&ctx, cmd, self.ranges.get(), 0, plan.tiles as u64 * 8, 0);
         if let (Some(c), true) = (&self.counters, plan.counters) {
-            recorder::fill(&ctx, cmd, c, 0, vk::WHOLE_SIZE, 0);
+            recorder::zero(&ctx, cmd, c);
         }
         recorder::barrier(&ctx, cmd);
         let n = scene.voxels;

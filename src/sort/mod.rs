@@ -124,23 +124,10 @@ pub(crate) struct RunState {
 
 impl RunState {
     pub fn new(ctx: &Context, name: &str, capacity: u32, status_words: u64) -> Result<Self> {
-        let state = ctx.buffer(
-            &format!("{name}.state"),
-            (STATE_WORDS * 4) as u64,
-            Memory::Device,
-        )?;
-        let status = ctx.buffer(
-            &format!("{name}.status"),
-            status_words.max(1) * 8,
-            Memory::Device,
-        )?;
+        // Zeroed once: epoch 0 never matches a run's tag, so status words need no clearing.
+        let state = ctx.zeroed_buffer(&format!("{name}.state"), (STATE_WORDS * 4) as u64)?;
+        let status = ctx.zeroed_buffer(&format!("{name}.status"), status_words.max(1) * 8)?;
         let setup = Kernel::new(ctx, &kernels::SORT_SETUP)?;
-        // Zero once: epoch 0 never matches a run's tag, so status words need no clearing.
-        ctx.submit_and_wait(|cmd| {
-            recorder::fill(ctx, cmd, &state, 0, vk::WHOLE_SIZE, 0);
-            recorder::fill(ctx, cmd, &status, 0, vk::WHOLE_SIZE, 0);
-            Ok(())
-        })?;
         Ok(RunState {
             state,
             status,

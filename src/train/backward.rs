@@ -55,14 +55,7 @@ impl Gradients {
     /// Zeroed gradient buffers for `scene`.
     pub fn new(ctx: &Context, scene: &SceneGpu) -> Result<Gradients> {
         let n = scene.voxels.max(1) as u64;
-        let mk = |name: &str, floats: u64| -> Result<Buffer> {
-            let b = ctx.buffer(name, floats.max(1) * 4, Memory::Device)?;
-            ctx.submit_and_wait(|cmd| {
-                recorder::fill(ctx, cmd, &b, 0, vk::WHOLE_SIZE, 0);
-                Ok(())
-            })?;
-            Ok(b)
-        };
+        let mk = |name: &str, floats: u64| ctx.zeroed_buffer(name, floats * 4);
         Ok(Gradients {
             geo: mk("grad.geo", scene.grid_points as u64)?,
             sh0: mk("grad.sh0", n * 3)?,
@@ -76,7 +69,7 @@ impl Gradients {
 
     /// Records zeroing the accumulated priority.
     pub fn record_clear_priority(&self, ctx: &Context, cmd: vk::CommandBuffer) {
-        recorder::fill(ctx, cmd, &self.priority, 0, vk::WHOLE_SIZE, 0);
+        recorder::zero(ctx, cmd, &self.priority);
     }
 
     fn matches(&self, scene: &SceneGpu) -> bool {
@@ -202,11 +195,7 @@ impl Backward {
                 &kernels::TRAIN_VOXEL_BACKWARD_CAS,
             )
         };
-        let lost = ctx.buffer("backward.lost", 16, Memory::Device)?;
-        ctx.submit_and_wait(|cmd| {
-            recorder::fill(ctx, cmd, &lost, 0, vk::WHOLE_SIZE, 0);
-            Ok(())
-        })?;
+        let lost = ctx.zeroed_buffer("backward.lost", 16)?;
         Ok(Backward {
             ctx: ctx.clone(),
             prepare_k: Kernel::new(ctx, &kernels::TRAIN_GRAD_PREPARE)?,
@@ -326,8 +315,8 @@ impl Backward {
         unsafe {
             dev.cmd_update_buffer(cmd, self.params.raw(), 0, bytemuck::bytes_of(&params));
         }
-        recorder::fill(&ctx, cmd, self.vgrad.get(), 0, vk::WHOLE_SIZE, 0);
-        recorder::fill(&ctx, cmd, &grads.geo, 0, vk::WHOLE_SIZE, 0);
+        recorder::zero(&ctx, cmd, self.vgrad.get());
+        recorder::zero(&ctx, cmd, &grads.geo);
         recorder::barrier(&ctx, cmd);
         let p2 = Push2 {
             frame: frame.params,

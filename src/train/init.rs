@@ -1,7 +1,6 @@
 //! Setting a run up: the starting grid (uniform, then only what the training views see),
 //! the voxel budget, the optimiser moments and [`Trainer::new`].
 
-use ash::vk;
 use rand::SeedableRng;
 
 use super::backward::{Backward, Gradients};
@@ -10,11 +9,12 @@ use super::loss::PixelLoss;
 use super::optim::{Adam, Tv};
 use super::ssim::Ssim;
 use super::trainer::Trainer;
+use super::views::TrainViews;
 use crate::adapt::stats::StatsPass;
 use crate::adapt::topology::Topology;
 use crate::adapt::visible_only;
 use crate::data::Dataset;
-use crate::gpu::{recorder, Buffer, Context, Memory};
+use crate::gpu::{Buffer, Context};
 use crate::raster::Renderer;
 use crate::scene::{octpath_from_ijk, Scene, SceneGpu};
 use crate::{Error, Result};
@@ -28,14 +28,10 @@ pub(super) struct Moments {
 impl Moments {
     pub(super) fn new(ctx: &Context, name: &str, count: u64) -> Result<Moments> {
         let bytes = count.max(1) * 4;
-        let m = ctx.buffer(&format!("{name}.adam-m"), bytes, Memory::Device)?;
-        let v = ctx.buffer(&format!("{name}.adam-v"), bytes, Memory::Device)?;
-        ctx.submit_and_wait(|cmd| {
-            recorder::fill(ctx, cmd, &m, 0, vk::WHOLE_SIZE, 0);
-            recorder::fill(ctx, cmd, &v, 0, vk::WHOLE_SIZE, 0);
-            Ok(())
-        })?;
-        Ok(Moments { m, v })
+        Ok(Moments {
+            m: ctx.zeroed_buffer(&format!("{name}.adam-m"), bytes)?,
+            v: ctx.zeroed_buffer(&format!("{name}.adam-v"), bytes)?,
+        })
     }
 }
 
@@ -167,23 +163,7 @@ impl Trainer {
         let grads = Gradients::new(ctx, &scene)?;
         let mom = Self::moments(ctx, &scene, None)?;
         let (w, h) = (train.width, train.height);
-        let np = (w * h) as usize;
-        let mut planar = vec![0f32; train.frames.len() * 3 * np];
-        for (i, f) in train.frames.iter().enumerate() {
-            if f.rgb.len() != np {
-                return Err(Error::Invalid(format!(
-                    "training image {} has {} pixels, expected {w}×{h}",
-                    f.name,
-                    f.rgb.len()
-                )));
-            }
-            for (p, c) in f.rgb.iter().enumerate() {
-                for ch in 0..3 {
-                    planar[(i * 3 + ch) * np + p] = c[ch];
-                }
-            }
-        }
-        let gt = ctx.buffer_from("train.ground-truth", &planar)?;
+        let views = TrainViews::upload(ctx, train, TrainViews::default_chunk_bytes(ctx))?;
         let float_atomics = std::env::var("SVRASTER_NO_FLOAT_ATOMICS").is_err();
         let schedule = cfg.schedule();
         Ok(Trainer {
@@ -201,7 +181,7 @@ impl Trainer {
             adam: Adam::new(ctx)?,
             tv: Tv::new(ctx, float_atomics)?,
             loss: PixelLoss::new(ctx)?,
-            gt,
+            views,
             cams,
             width: w,
             height: h,

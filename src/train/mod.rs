@@ -9,3 +9,4 @@ pub mod loss;
 pub mod optim;
 pub mod ssim;
 pub mod trainer;
+pub mod views;

@@ -146,7 +146,7 @@ impl Adam {
 
     /// Records a clear of the flag (followed by a barrier).
     pub fn record_reset(&self, cmd: vk::CommandBuffer) {
-        recorder::fill(&self.ctx, cmd, &self.flags, 0, vk::WHOLE_SIZE, 0);
+        recorder::zero(&self.ctx, cmd, &self.flags);
         recorder::barrier(&self.ctx, cmd);
     }
 }

@@ -21,10 +21,11 @@ use super::init::Moments;
 use super::loss::PixelLoss;
 use super::optim::{Adam, AdamConfig, Tv};
 use super::ssim::Ssim;
+use super::views::TrainViews;
 use crate::adapt::stats::StatsPass;
 use crate::adapt::topology::Topology;
 use crate::camera::Camera;
-use crate::gpu::{recorder, Buffer, Context, Timestamps};
+use crate::gpu::{recorder, Context, Timestamps};
 use crate::raster::{RenderOptions, Renderer};
 use crate::scene::{Scene, SceneGpu};
 use crate::{Error, Result};
@@ -78,7 +79,7 @@ pub struct Trainer {
     pub(super) adam: Adam,
     pub(super) tv: Tv,
     pub(super) loss: PixelLoss,
-    pub(super) gt: Buffer,
+    pub(super) views: TrainViews,
     pub(super) cams: Vec<Camera>,
     pub(super) width: u32,
     pub(super) height: u32,
@@ -201,10 +202,15 @@ impl Trainer {
         };
         let frame = self.renderer.last_frame()?;
         self.backward.prepare(&frame, self.scene.voxels)?;
-        let nout = frame.out_width * frame.out_height;
+        if (frame.out_width, frame.out_height) != (self.width, self.height) {
+            return Err(Error::Invalid(format!(
+                "frame rendered at {}×{}, but the training views are {}×{}",
+                frame.out_width, frame.out_height, self.width, self.height
+            )));
+        }
         let nrender = frame.render_width * frame.render_height;
         self.ssim.prepare(frame.out_width, frame.out_height)?;
-        let gt_addr = self.gt.address() + (view as u64 * 3 * nout as u64) * 4;
+        let gt_addr = self.views.address(view);
         let out_addr = self.renderer.output_address()?;
         let dout_addr = self.backward.dout()?.address();
 

@@ -1,0 +1,112 @@
+//! The training views on the device.
+//!
+//! Each view is stored planar (all red, then green, then blue; f32, output resolution)
+//! so the loss kernels read it by buffer device address. Views are packed, whole, into
+//! chunks of at most [`TrainViews::default_chunk_bytes`] (a quarter of a GiB, or less
+//! where the device's `maxMemoryAllocationSize` is smaller), so a capture of any length
+//! fits as long as the device memory holds it: a 185-view Mip-NeRF 360 scene at 1297×840
+//! is 2.4 GB, more than one allocation may be on most drivers (lavapipe: 2 GiB).
+
+use crate::data::Dataset;
+use crate::gpu::{Buffer, Context};
+use crate::{Error, Result};
+
+/// Largest chunk [`TrainViews::upload`] allocates by default.
+pub const MAX_CHUNK_BYTES: u64 = 256 << 20;
+
+/// The ground-truth images of the training views, on the device.
+pub struct TrainViews {
+    chunks: Vec<Buffer>,
+    /// Per view: chunk index and byte offset in it.
+    slots: Vec<(usize, u64)>,
+    bytes: u64,
+}
+
+impl TrainViews {
+    /// Chunk size used by [`Trainer`](super::Trainer): [`MAX_CHUNK_BYTES`], or the device's
+    /// largest allocation where that is smaller.
+    pub fn default_chunk_bytes(ctx: &Context) -> u64 {
+        MAX_CHUNK_BYTES.min(ctx.info().max_memory_allocation_size)
+    }
+
+    /// Uploads every frame of `data` (each `data.width × data.height` pixels), packing
+    /// whole views into chunks of at most `chunk_bytes` (a view larger than that gets a
+    /// chunk of its own).
+    pub fn upload(ctx: &Context, data: &Dataset, chunk_bytes: u64) -> Result<TrainViews> {
+        let np = data.width as usize * data.height as usize;
+        for f in &data.frames {
+            if f.rgb.len() != np {
+                return Err(Error::Invalid(format!(
+                    "training image {} has {} pixels, expected {}×{}",
+                    f.name,
+                    f.rgb.len(),
+                    data.width,
+                    data.height
+                )));
+            }
+        }
+        let view_bytes = (3 * np * 4) as u64;
+        let per_chunk = (chunk_bytes / view_bytes.max(1)).max(1) as usize;
+        let mut views = TrainViews {
+            chunks: Vec::new(),
+            slots: Vec::with_capacity(data.frames.len()),
+            bytes: 0,
+        };
+        for (c, frames) in data.frames.chunks(per_chunk).enumerate() {
+            let mut planar = vec![0f32; frames.len() * 3 * np];
+            for (i, f) in frames.iter().enumerate() {
+                for (p, rgb) in f.rgb.iter().enumerate() {
+                    for ch in 0..3 {
+                        planar[(i * 3 + ch) * np + p] = rgb[ch];
+                    }
+                }
+                views.slots.push((c, i as u64 * view_bytes));
+            }
+            let name = format!("train.views[{c}]");
+            let buf = ctx.buffer_from(&name, &planar).map_err(|e| match e {
+                Error::OutOfMemory { .. } => Error::Invalid(format!(
+                    "the {} training views ({:.1} GiB as f32) do not fit in device memory \
+                     ({e}); train at a lower resolution (--downscale) or on fewer views",
+                    data.frames.len(),
+                    (view_bytes * data.frames.len() as u64) as f64 / (1u64 << 30) as f64
+                )),
+                e => e,
+            })?;
+            views.bytes += buf.size();
+            views.chunks.push(buf);
+        }
+        Ok(views)
+    }
+
+    /// Number of views.
+    pub fn len(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// Whether there are no views.
+    pub fn is_empty(&self) -> bool {
+        self.slots.is_empty()
+    }
+
+    /// Number of device buffers the views are packed into.
+    pub fn chunks(&self) -> usize {
+        self.chunks.len()
+    }
+
+    /// Device bytes held.
+    pub fn bytes(&self) -> u64 {
+        self.bytes
+    }
+
+    /// The buffer holding `view` and the view's byte offset in it.
+    pub fn locate(&self, view: usize) -> (&Buffer, u64) {
+        let (c, offset) = self.slots[view];
+        (&self.chunks[c], offset)
+    }
+
+    /// Device address of `view`'s planar RGB.
+    pub fn address(&self, view: usize) -> u64 {
+        let (buf, offset) = self.locate(view);
+        buf.address() + offset
+    }
+}
