@@ -1133,3 +1133,78 @@ fn loaded_scene_is_usable() {
 fn load_round_trip(s: &Scene) -> Scene {
     from_bytes(&to_bytes(s).unwrap()).unwrap()
 }
+
+/// Interoperability with the reference implementation of the format (the `safetensors`
+/// crate, as used by Python's `safetensors`): it reads our files and finds our tensors
+/// byte for byte, and a file it writes from the same tensors and metadata loads back as
+/// the same scene. (Our reader stays our own: the crate keeps the last of duplicate
+/// keys, and its errors name neither the tensor nor the bytes for most corruptions.)
+#[test]
+fn safetensors_reference_implementation_interoperates() {
+    use safetensors::{tensor::TensorView, Dtype, SafeTensors};
+    let scene = base_scene();
+    let ours = to_bytes(&scene).unwrap();
+    let st = SafeTensors::deserialize(&ours).unwrap();
+    let (_, header) = SafeTensors::read_metadata(&ours).unwrap();
+    let meta = header.metadata().clone().unwrap();
+    assert_eq!(meta["format"], checkpoint::FORMAT);
+    let n = scene.num_voxels();
+    let sh0: Vec<f32> = scene.sh0.iter().flatten().copied().collect();
+    let want: [(&str, Dtype, Vec<usize>, &[u8]); 5] = [
+        (
+            "octpath",
+            Dtype::U64,
+            vec![n],
+            bytemuck::cast_slice(&scene.octpath),
+        ),
+        ("octlevel", Dtype::U8, vec![n], &scene.octlevel),
+        (
+            "geo_grid_pts",
+            Dtype::F32,
+            vec![scene.num_grid_points()],
+            bytemuck::cast_slice(&scene.geo),
+        ),
+        ("sh0", Dtype::F32, vec![n, 3], bytemuck::cast_slice(&sh0)),
+        (
+            "shs",
+            Dtype::F32,
+            vec![n, scene.shs_per_voxel(), 3],
+            bytemuck::cast_slice(&scene.shs),
+        ),
+    ];
+    assert_eq!(st.len(), want.len());
+    for (name, dtype, shape, data) in &want {
+        let t = st.tensor(name).unwrap();
+        assert_eq!((t.dtype(), t.shape()), (*dtype, &shape[..]), "{name}");
+        assert_eq!(t.data(), *data, "{name}");
+    }
+    let views: Vec<(&str, TensorView)> = want
+        .iter()
+        .map(|(name, dtype, shape, data)| {
+            (*name, TensorView::new(*dtype, shape.clone(), data).unwrap())
+        })
+        .collect();
+    let theirs = safetensors::serialize(views, Some(meta)).unwrap();
+    let back = from_bytes(&theirs).unwrap();
+    assert_eq!(back.octpath, scene.octpath);
+    assert_eq!(back.octlevel, scene.octlevel);
+    assert_eq!(back.geo, scene.geo);
+    assert_eq!(back.sh0, scene.sh0);
+    assert_eq!(back.shs, scene.shs);
+    assert_eq!(
+        (
+            back.center,
+            back.extent,
+            back.sh_degree,
+            back.background,
+            back.supersample
+        ),
+        (
+            scene.center,
+            scene.extent,
+            scene.sh_degree,
+            scene.background,
+            scene.supersample
+        )
+    );
+}

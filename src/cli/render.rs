@@ -185,7 +185,6 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
     }
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create output directory {}", a.out.display()))?;
-    scene.validate()?;
     let opts = RenderOptions {
         samples: a.samples,
         supersample: a.ss.unwrap_or(scene.supersample),

@@ -69,7 +69,7 @@ use std::path::Path;
 use serde::de::{Deserialize, Deserializer, MapAccess, Visitor};
 use serde_json::Value;
 
-use super::{sh_coeffs, Scene, MAX_LEVEL, MAX_SH_DEGREE};
+use super::{sh_coeffs, Scene, MAX_SH_DEGREE};
 use crate::{Error, Result};
 
 /// Value of the `format` metadata key.
@@ -486,24 +486,8 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
     }
 
     // --- voxels
-    if let Some(i) = octlevel
-        .iter()
-        .position(|&l| !(1..=MAX_LEVEL as u8).contains(&l))
-    {
-        return Err(format!(
-            "octlevel[{i}] is {}, outside 1..={MAX_LEVEL}",
-            octlevel[i]
-        ));
-    }
-    for (i, (&p, &l)) in octpath.iter().zip(&octlevel).enumerate() {
-        let low = 3 * (MAX_LEVEL - l as u32);
-        if p >> 48 != 0 || (low > 0 && p & ((1u64 << low) - 1) != 0) {
-            return Err(format!(
-                "octpath[{i}] = {p:#x} has bits outside the path of its level {l} (3 bits per level from bit 47 down)"
-            ));
-        }
-    }
-    // Checks overlap/duplicates and builds the unique, sorted grid points.
+    // Checks levels, path bits, overlap and duplicates once, and builds the unique,
+    // sorted grid points.
     let mut scene =
         Scene::from_voxels(center, extent, 0, octpath, octlevel, 0.0).map_err(|e| match e {
             Error::Invalid(m) => m,
@@ -522,7 +506,7 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
     scene.geo = geo;
     scene.sh0 = sh0;
     scene.shs = shs;
-    scene.validate().map_err(|e| match e {
+    scene.validate_arrays().map_err(|e| match e {
         Error::Invalid(m) => m,
         e => e.to_string(),
     })?;

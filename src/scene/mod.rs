@@ -166,7 +166,7 @@ impl Scene {
             shs: vec![0.0; n * coeffs * 3],
         };
         scene.resolve_corners()?;
-        scene.validate()?;
+        scene.validate_arrays()?;
         Ok(scene)
     }
 
@@ -236,6 +236,16 @@ impl Scene {
 
     /// Checks every invariant of the model; the error names the first problem found.
     pub fn validate(&self) -> Result<()> {
+        self.check(true)
+    }
+
+    /// [`Scene::validate`] for a scene whose voxels (levels, path bits, no overlap) were
+    /// just checked, e.g. built by [`Scene::from_voxels`]: skips that O(n log n) part.
+    pub(crate) fn validate_arrays(&self) -> Result<()> {
+        self.check(false)
+    }
+
+    fn check(&self, voxels: bool) -> Result<()> {
         let n = self.octpath.len();
         let bad = |m: String| Err(Error::Invalid(m));
         if !self.extent.is_finite() || self.extent <= 0.0 {
@@ -289,7 +299,9 @@ impl Scene {
                 "{n} voxels: at most {MAX_VOXELS} are supported (29-bit voxel ids)"
             ));
         }
-        check_voxels(&self.octpath, &self.octlevel)?;
+        if voxels {
+            check_voxels(&self.octpath, &self.octlevel)?;
+        }
         for w in self.grid_keys.windows(2) {
             if w[0] >= w[1] {
                 return bad(format!(
@@ -350,13 +362,14 @@ fn check_voxels(octpath: &[u64], octlevel: &[u8]) -> Result<()> {
     for (i, (&p, &l)) in octpath.iter().zip(octlevel).enumerate() {
         if !(1..=MAX_LEVEL as u8).contains(&l) {
             return Err(Error::Invalid(format!(
-                "voxel {i}: level {l} outside 1..={MAX_LEVEL}"
+                "octlevel[{i}] is {l}, outside 1..={MAX_LEVEL}"
             )));
         }
         let low = 3 * (MAX_LEVEL - l as u32);
         if p >> 48 != 0 || (low > 0 && p & ((1u64 << low) - 1) != 0) {
             return Err(Error::Invalid(format!(
-                "voxel {i}: octpath {p:#x} has bits outside the 48-bit path of level {l}"
+                "octpath[{i}] = {p:#x} has bits outside the path of its level {l} (3 bits per \
+                 level from bit 47 down)"
             )));
         }
     }
