@@ -72,7 +72,8 @@ pub fn load_split(
             dir,
             std::io::Error::new(
                 std::io::ErrorKind::NotFound,
-                "dataset folder not found; pass the folder that holds transforms_*.json",
+                "dataset folder not found; pass the folder that holds transforms_*.json (Blender) \
+                 or sparse/0 (COLMAP)",
             ),
         ));
     }
@@ -81,7 +82,8 @@ pub fn load_split(
         if e.kind() == std::io::ErrorKind::NotFound {
             let found = available_splits(dir);
             let hint = if found.is_empty() {
-                "the folder has no transforms_*.json; is it a Blender/NeRF-synthetic dataset?"
+                "the folder has neither transforms_*.json (Blender / NeRF-synthetic) nor a \
+                 COLMAP model in sparse/0 (cameras, images, points3D .bin or .txt)"
                     .to_string()
             } else {
                 format!("splits present: {}", found.join(", "))

@@ -43,18 +43,31 @@ pub fn save_gray16_png(path: &Path, width: u32, height: u32, gray: &[u16]) -> Re
     save_png(path, width, height, &bytes, ExtendedColorType::L16)
 }
 
-/// Reads a PNG as `(width, height, rgba)`: row-major, values in `[0, 1]`. Gray images
-/// are replicated to RGB; alpha is 1 where the file has none. The error names the file
-/// when it is missing or cannot be decoded.
+/// Reads a PNG or JPEG (told apart by content) as `(width, height, rgba)`: row-major,
+/// values in `[0, 1]`, turned upright by the file's EXIF orientation when it has one.
+/// Gray images are replicated to RGB; alpha is 1 where the file has none. The error names
+/// the file when it is missing or cannot be decoded.
 pub fn load_rgba(path: &Path) -> Result<(u32, u32, Vec<[f32; 4]>)> {
+    use image::ImageDecoder;
     let bytes = std::fs::read(path).map_err(|e| io_error(path, e))?;
-    let img = image::load_from_memory_with_format(&bytes, ImageFormat::Png).map_err(|e| {
+    let bad = |e: String| {
         Error::Invalid(format!(
-            "{}: cannot decode the image as PNG ({e}); the file is corrupt or not a PNG, \
-             re-export it as an 8- or 16-bit PNG",
+            "{}: cannot decode the image ({e}); the file is corrupt or not a PNG/JPEG, \
+             re-export it as an 8- or 16-bit PNG or a JPEG",
             path.display()
         ))
-    })?;
+    };
+    let reader = image::ImageReader::new(std::io::Cursor::new(&bytes))
+        .with_guessed_format()
+        .map_err(|e| bad(e.to_string()))?;
+    match reader.format() {
+        Some(ImageFormat::Png | ImageFormat::Jpeg) => {}
+        other => return Err(bad(format!("format {other:?} is not supported"))),
+    }
+    let mut decoder = reader.into_decoder().map_err(|e| bad(e.to_string()))?;
+    let orientation = decoder.orientation().map_err(|e| bad(e.to_string()))?;
+    let mut img = image::DynamicImage::from_decoder(decoder).map_err(|e| bad(e.to_string()))?;
+    img.apply_orientation(orientation);
     use image::DynamicImage as D;
     let (w, h) = (img.width(), img.height());
     if w == 0 || h == 0 {
@@ -77,7 +90,7 @@ pub fn load_rgba(path: &Path) -> Result<(u32, u32, Vec<[f32; 4]>)> {
             .collect(),
         other => {
             return Err(Error::Invalid(format!(
-                "{}: unsupported PNG pixel format {:?}; use 8- or 16-bit gray/RGB/RGBA",
+                "{}: unsupported pixel format {:?}; use 8- or 16-bit gray/RGB/RGBA",
                 path.display(),
                 other.color()
             )))
