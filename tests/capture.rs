@@ -6,6 +6,7 @@ mod common;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use serde_json::json;
 use svraster::data::capture::{self, load_colmap, load_shots, natural_cmp, CaptureOptions, Shot};
 use svraster::data::colmap::{self, ColmapCamera, ColmapImage, ColmapPoint, Reconstruction};
 use svraster::data::image::save_rgb_png;
@@ -224,8 +225,8 @@ fn lens_models_invert() {
 /// the FOV model's atan form.
 #[test]
 fn lens_models_match_textbook_formulas() {
-    let (u, v) = (0.31, -0.22);
-    let (r2, r) = (u * u + v * v, (u * u + v * v as f64).sqrt());
+    let (u, v): (f64, f64) = (0.31, -0.22);
+    let (r2, r) = (u * u + v * v, (u * u + v * v).sqrt());
     let close = |a: (f64, f64), b: (f64, f64), what: &str| {
         assert!(
             (a.0 - b.0).abs() < 1e-9 && (a.1 - b.1).abs() < 1e-9,
@@ -488,4 +489,286 @@ fn real_mip360_garden_colmap_model() {
     assert_eq!(test.frames[0].name, "frame_00001");
     let _ = capture::image_folder(&dir, None).unwrap();
     let _: BTreeMap<u32, ColmapImage> = rec.images;
+}
+
+// ---------------------------------------------------------------------------------------
+// Unbounded scenes: main region and background shells
+
+use svraster::adapt::shells::{initial_shells, inside_grid, quantile, shell_layout};
+use svraster::data::Camera;
+use svraster::train::bounds::main_region;
+
+/// The main grid fills exactly the central cube; the shells tile the rest of the root
+/// cube without overlap (volumes add up to root³ − main³, no two cells overlap).
+#[test]
+fn shells_tile_the_root_outside_the_main_region() {
+    assert_eq!(inside_grid(0, 3).len(), 512);
+    for (o, g) in [(1u32, 2u32), (3, 2), (5, 1)] {
+        let inside = inside_grid(o, g);
+        let shells = initial_shells(o);
+        assert_eq!(shells.len(), 56 * o as usize);
+        // In units of the root edge, the main cube is [0.5 − 2^−(o+1), 0.5 + 2^−(o+1)]³.
+        let half = 0.5f64.powi(o as i32 + 1);
+        let boxes: Vec<([f64; 3], f64)> = inside
+            .iter()
+            .chain(&shells)
+            .map(|&(ijk, l)| {
+                let s = 0.5f64.powi(l as i32);
+                (ijk.map(|v| v as f64 * s), s)
+            })
+            .collect();
+        for (k, (lo, s)) in boxes.iter().enumerate() {
+            let is_inside = k < inside.len();
+            let within = lo
+                .iter()
+                .all(|&v| v >= 0.5 - half - 1e-12 && v + s <= 0.5 + half + 1e-12);
+            assert_eq!(within, is_inside, "o {o}: cell {k} at {lo:?} size {s}");
+        }
+        let volume: f64 = boxes[inside.len()..].iter().map(|b| b.1.powi(3)).sum();
+        assert!(
+            (volume - (1.0 - (2.0 * half).powi(3))).abs() < 1e-12,
+            "o {o}: {volume}"
+        );
+        let main: f64 = boxes[..inside.len()].iter().map(|b| b.1.powi(3)).sum();
+        assert!((main - (2.0 * half).powi(3)).abs() < 1e-12);
+        // Pairwise disjoint (cells of one level are distinct; cells of different levels
+        // lie in different shells).
+        let mut keys: Vec<_> = inside.iter().chain(&shells).collect();
+        keys.sort();
+        keys.dedup();
+        assert_eq!(keys.len(), boxes.len());
+    }
+    assert_eq!(quantile(&[0.0, 1.0, 2.0, 3.0, 4.0], 0.9), 3.6);
+}
+
+fn ring_cameras(n: usize, radius: f64, center: [f64; 3], w: u32) -> Vec<Camera> {
+    (0..n)
+        .map(|k| {
+            let a = std::f64::consts::TAU * k as f64 / n as f64;
+            let eye = [
+                center[0] + radius * a.cos(),
+                center[1] + radius * a.sin(),
+                center[2] + 0.3 * radius,
+            ];
+            Camera::look_at(eye, center, [0.0, 0.0, 1.0], 1.2, w, w)
+        })
+        .collect()
+}
+
+#[test]
+fn main_region_from_cameras() {
+    // 360°: centre = mean position (raised by the ring's height), radius = median distance.
+    let cams = ring_cameras(12, 4.0, [10.0, -5.0, 2.0], 32);
+    let r = main_region(&cams, &[], "auto").unwrap();
+    assert_eq!(r.mode, "camera_median");
+    let want = [10.0, -5.0, 2.0 + 1.2];
+    for (got, want) in r.center.iter().zip(want) {
+        assert!((got - want).abs() < 1e-9, "{:?}", r.center);
+    }
+    assert!((r.radius - 4.0).abs() < 1e-9, "{}", r.radius);
+    assert!((main_region(&cams, &[], "camera_max").unwrap().radius - r.radius).abs() < 1e-9);
+    // Forward-facing: cameras on a small grid, all looking down +y.
+    let cams: Vec<Camera> = (0..4)
+        .map(|k| {
+            let eye = [(k % 2) as f64, 0.0, (k / 2) as f64];
+            let target = [eye[0], 10.0, eye[2]];
+            Camera::look_at(eye, target, [0.0, 0.0, 1.0], 1.0, 32, 24)
+        })
+        .collect();
+    let r = main_region(&cams, &[], "auto").unwrap();
+    assert_eq!(r.mode, "forward");
+    // Mean position (0.5, 0, 0.5); largest distance √0.5; e = 2√0.5.
+    let e = 2.0 * 0.5f64.sqrt();
+    let want = [0.5, e, 0.5];
+    for (got, want) in r.center.iter().zip(want) {
+        assert!((got - want).abs() < 1e-9, "{:?}", r.center);
+    }
+    assert!((r.radius - 0.8 * e).abs() < 1e-9);
+    // With sparse points, forward-facing captures are bounded by them: a dense cube of
+    // half-size 2 around (3, 20, 1) and a few far points.
+    let mut pts = Vec::new();
+    for i in 0..20 {
+        for j in 0..20 {
+            for k in 0..20 {
+                let u = |v: i32| -2.0 + 4.0 * (v as f64 + 0.5) / 20.0;
+                pts.push([3.0 + u(i), 20.0 + u(j), 1.0 + u(k)]);
+            }
+        }
+    }
+    // A thin halo out to 40 (real captures' points thin out; they do not stop).
+    let mut rng = common::Rng(3);
+    for _ in 0..400 {
+        let d = rng.dir();
+        let r = rng.range(2.0, 40.0) / d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        pts.push([3.0 + r * d[0], 20.0 + r * d[1], 1.0 + r * d[2]]);
+    }
+    let r = main_region(&cams, &pts, "auto").unwrap();
+    assert_eq!(r.mode, "points");
+    assert!(
+        (r.center[0] - 3.0).abs() < 0.2 && (r.center[1] - 20.0).abs() < 0.2,
+        "{r:?}"
+    );
+    // Density 8000/(2r)³ in the core; it falls to a tenth of its peak by r ≈ 2·10^⅓.
+    assert!((2.0..6.0).contains(&r.radius), "{r:?}");
+    assert!(main_region(&cams, &[], "points").is_err());
+    assert!(main_region(&cams[..1], &[], "auto").is_err());
+    assert!(main_region(&cams, &[], "sphere").is_err());
+}
+
+/// Background shells around a ring of cameras: every kept voxel is seen, the count
+/// reaches the target ratio, and what the cameras see closely is finer.
+#[test]
+fn shell_layout_reaches_the_ratio_with_seen_voxels() {
+    let ctx = common::context();
+    let cams = ring_cameras(16, 1.0, [0.0; 3], 48);
+    let mut renderer = svraster::raster::Renderer::new(&ctx).unwrap();
+    let mut stats = svraster::adapt::stats::StatsPass::new(&ctx).unwrap();
+    // Main region edge 2 (radius 1), 3 shell levels: root edge 16.
+    let (cells, rep) = shell_layout(
+        [0.0; 3],
+        16.0,
+        3,
+        3 + 4,
+        3000,
+        &cams,
+        &mut renderer,
+        &mut stats,
+    )
+    .unwrap();
+    println!("{rep:?}");
+    assert_eq!(rep.voxels, cells.len());
+    assert!(cells.len() >= 3000, "{}", cells.len());
+    assert!(
+        cells.len() < 3000 + 8 * 3000 / 7,
+        "overshoot: {}",
+        cells.len()
+    );
+    assert!(rep.rounds >= 2 && rep.max_level > 4, "{rep:?}");
+    assert!(rep.max_level <= 7);
+    // Every kept voxel is seen by some camera: a second measurement finds no zero rate.
+    let scene = svraster::adapt::shells::scene_of([0.0; 3], 16.0, &cells, -10.0).unwrap();
+    let gpu = svraster::scene::SceneGpu::upload(&ctx, &scene).unwrap();
+    stats.begin(gpu.voxels).unwrap();
+    for c in &cams {
+        stats.add_view_intervals(&mut renderer, &gpu, c).unwrap();
+    }
+    let rate = stats.read().unwrap().sampling_rate(&scene);
+    assert!(rate.iter().all(|&r| r > 0.0));
+    let per_level: Vec<usize> = (2..=7)
+        .map(|l| cells.iter().filter(|c| c.1 == l).count())
+        .collect();
+    println!("background voxels per level 2..=7: {per_level:?}");
+    // The shells nearest the cameras are subdivided: voxels finer than the initial
+    // level-4 cells of the innermost shell exist.
+    assert!(per_level[3] + per_level[4] > 0, "{per_level:?}");
+    drop(gpu);
+    common::finish(&ctx);
+}
+
+/// nerfstudio's transforms.json of the garden against the COLMAP model it was derived
+/// from: same lens, and poses equal after nerfstudio's `applied_transform` of the world;
+/// the loaded test views are pixel-identical.
+#[test]
+fn real_mip360_garden_nerfstudio_matches_colmap() {
+    let Some(dir) = shared("mip360_garden_512") else {
+        return;
+    };
+    let (folder, shots) = svraster::data::nerfstudio::shots(&dir).unwrap();
+    assert_eq!(folder, dir.join("images"));
+    assert_eq!(shots.len(), 185);
+    let rec = colmap::read_model(&dir.join("sparse/0")).unwrap();
+    let col = capture::colmap_shots(&rec, &dir.join("sparse/0")).unwrap();
+    let t: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("transforms.json")).unwrap())
+            .unwrap();
+    let a: Vec<Vec<f64>> = serde_json::from_value(t["applied_transform"].clone()).unwrap();
+    let mut worst = 0.0f64;
+    for (n, c) in shots.iter().zip(&col) {
+        assert_eq!(n.name, c.name);
+        assert_eq!(n.lens, c.lens);
+        for (row, ar) in n.c2w.iter().zip(&a) {
+            for (k, got) in row.iter().enumerate() {
+                let mut want: f64 = (0..3).map(|j| ar[j] * c.c2w[j][k]).sum();
+                if k == 3 {
+                    want += ar[3];
+                }
+                worst = worst.max((got - want).abs());
+            }
+        }
+    }
+    assert!(worst < 1e-9, "pose mismatch {worst:e}");
+    let opts = CaptureOptions {
+        downscale: 8.0,
+        ..Default::default()
+    };
+    let ns = capture::load_nerfstudio(&dir, "test", &opts).unwrap();
+    let cm = load_colmap(&dir, "test", &opts).unwrap();
+    assert_eq!(ns.frames.len(), 24);
+    for (x, y) in ns.frames.iter().zip(&cm.frames) {
+        assert_eq!(x.rgb, y.rgb);
+        assert_eq!((x.camera.fx, x.camera.cx), (y.camera.fx, y.camera.cx));
+    }
+}
+
+/// A small transforms.json written here: per-frame intrinsics override the global ones,
+/// a non-rigid pose and an unknown camera model are named.
+#[test]
+fn nerfstudio_fixture() {
+    let dir = tmp("ns");
+    std::fs::create_dir_all(dir.join("imgs")).unwrap();
+    for k in 0..3 {
+        save_rgb_png(
+            &dir.join(format!("imgs/f{k}.png")),
+            8,
+            6,
+            &vec![[0.5; 3]; 48],
+        )
+        .unwrap();
+    }
+    let pose = |x: f64| json!([[1, 0, 0, x], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]);
+    let mut doc = json!({
+        "camera_model": "OPENCV", "fl_x": 10.0, "fl_y": 11.0, "cx": 4.0, "cy": 3.0,
+        "w": 8, "h": 6, "k1": 0.0,
+        "frames": [
+            {"file_path": "./imgs/f2.png", "transform_matrix": pose(2.0)},
+            {"file_path": "imgs/f0.png", "transform_matrix": pose(0.0), "fl_x": 12.0},
+            {"file_path": "imgs/f1.png", "transform_matrix": pose(1.0)},
+        ]
+    });
+    let write = |d: &serde_json::Value| {
+        std::fs::write(dir.join("transforms.json"), d.to_string()).unwrap();
+    };
+    write(&doc);
+    assert_eq!(
+        svraster::data::detect_format(&dir),
+        svraster::data::Format::Nerfstudio
+    );
+    let ds = capture::load_nerfstudio(&dir, "all", &CaptureOptions::default()).unwrap();
+    let names: Vec<&str> = ds.frames.iter().map(|f| f.name.as_str()).collect();
+    assert_eq!(names, ["f0", "f1", "f2"]);
+    assert_eq!(ds.frames[0].camera.fx, 12.0);
+    assert_eq!(
+        (ds.frames[1].camera.fx, ds.frames[1].camera.fy),
+        (10.0, 11.0)
+    );
+    // OpenGL → OpenCV axes: the camera looks down world −z.
+    assert_eq!(
+        ds.frames[1].camera.rotate([0.0, 0.0, 1.0]),
+        [0.0, 0.0, -1.0]
+    );
+    assert_eq!(ds.frames[2].camera.origin(), [2.0, 0.0, 0.0]);
+    doc["frames"][1]["transform_matrix"] =
+        json!([[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]);
+    write(&doc);
+    let e = capture::load_nerfstudio(&dir, "all", &CaptureOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("frame 1") && e.contains("rigid"), "{e}");
+    doc["frames"][1]["transform_matrix"] = pose(0.0);
+    doc["camera_model"] = json!("EQUIRECTANGULAR");
+    write(&doc);
+    let e = capture::load_nerfstudio(&dir, "all", &CaptureOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("EQUIRECTANGULAR"), "{e}");
 }

@@ -297,6 +297,7 @@ fn training_views_pack_into_chunks() {
         height: h,
         background: [1.0; 3],
         split: "train".into(),
+        points: Vec::new(),
     };
     let view_bytes = (3 * np * 4) as u64;
     for (chunk_bytes, want_chunks) in [(2 * view_bytes + 7, 3), (view_bytes / 2, 5), (1 << 30, 1)] {

@@ -3,6 +3,7 @@
 //! device (prune, subdivide, rebuild the shared grid points and carry parameters and
 //! optimiser moments), and what an adaptive step reports.
 
+pub mod shells;
 pub mod stats;
 pub mod topology;
 

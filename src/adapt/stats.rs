@@ -96,6 +96,11 @@ impl StatsPass {
         })
     }
 
+    /// The device context the pass runs on.
+    pub fn context(&self) -> &Context {
+        &self.ctx
+    }
+
     /// Voxels of the current accumulation (set by [`StatsPass::begin`]).
     pub fn voxels(&self) -> u32 {
         self.voxels

@@ -33,9 +33,21 @@ pub struct TrainArgs {
     pub resume: bool,
 }
 
+/// The preset of a new run: `--preset`, else the one the data's format calls for
+/// (Blender → synthetic, COLMAP → real).
+pub fn default_preset(a: &TrainArgs) -> String {
+    a.preset.clone().unwrap_or_else(|| {
+        match data::detect_format(&a.data) {
+            data::Format::Blender => "synthetic",
+            data::Format::Colmap | data::Format::Nerfstudio => "real",
+        }
+        .into()
+    })
+}
+
 /// Resolves the configuration of a new run.
 pub fn resolve_config(a: &TrainArgs) -> anyhow::Result<TrainConfig> {
-    let mut cfg = TrainConfig::preset(a.preset.as_deref().unwrap_or("synthetic"))?;
+    let mut cfg = TrainConfig::preset(&default_preset(a))?;
     if let Some(n) = a.iters {
         cfg.iters = n;
     }
@@ -66,7 +78,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     let run = &a.out;
     let cfg_path = run.join("config.json");
     let mut _lock = None;
-    let (cfg, init, opt_state, start_iter, preset, downscale) = if a.resume {
+    let (mut cfg, init, opt_state, start_iter, preset, downscale) = if a.resume {
         if a.iters.is_some() || a.seed.is_some() || !a.set.is_empty() {
             bail!("--resume continues a run with its own config.json: drop --iters/--seed/--set (or start a new --out)");
         }
@@ -150,7 +162,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             None,
             None,
             0,
-            a.preset.clone().unwrap_or_else(|| "synthetic".into()),
+            default_preset(a),
             downscale,
         )
     };
@@ -168,6 +180,23 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
                 run.display()
             );
         }
+    }
+    if init.is_none() && cfg.bound != "box" {
+        let r = svraster::train::bounds::main_region(&train.cameras(), &train.points, &cfg.bound)?;
+        cfg.center = r.center.map(|v| v as f32);
+        cfg.extent = (2.0 * r.radius) as f32;
+        eprintln!(
+            "main region ({} from the {} training cameras): centre [{:.4}, {:.4}, {:.4}], \
+             edge {:.4}; {} background shell levels (root edge {:.4})",
+            r.mode,
+            train.frames.len(),
+            cfg.center[0],
+            cfg.center[1],
+            cfg.center[2],
+            cfg.extent,
+            cfg.outside_level,
+            svraster::train::trainer::root_extent(&cfg)
+        );
     }
     if init.is_none() {
         eprintln!(

@@ -147,6 +147,7 @@ pub fn load_split(
         height,
         background,
         split: split.to_string(),
+        points: Vec::new(),
     })
 }
 

@@ -146,12 +146,37 @@ pub fn load_colmap(dir: &Path, split: &str, opts: &CaptureOptions) -> Result<Dat
     })?;
     let rec = colmap::read_model(&model_dir)?;
     let shots = colmap_shots(&rec, &model_dir)?;
-    load_shots(dir, shots, split, opts)
+    let mut ds = load_shots(dir, shots, split, opts)?;
+    ds.points = rec.points.iter().map(|p| p.xyz).collect();
+    Ok(ds)
+}
+
+/// Loads split `split` (`train`, `test` or `all`) of a nerfstudio capture in `dir`
+/// (`transforms.json`; `opts.images` replaces the frames' image folder).
+pub fn load_nerfstudio(dir: &Path, split: &str, opts: &CaptureOptions) -> Result<Dataset> {
+    let (folder, shots) = super::nerfstudio::shots(dir)?;
+    let folder = match &opts.images {
+        Some(_) => image_folder(dir, opts.images.as_deref())?,
+        None => folder,
+    };
+    load_shots_from(dir, &folder, shots, split, opts)
 }
 
 /// Loads the frames of `split` from `shots` (sorted): images, lens removal, downscaling.
 pub fn load_shots(
     dir: &Path,
+    shots: Vec<Shot>,
+    split: &str,
+    opts: &CaptureOptions,
+) -> Result<Dataset> {
+    let folder = image_folder(dir, opts.images.as_deref())?;
+    load_shots_from(dir, &folder, shots, split, opts)
+}
+
+/// [`load_shots`] with the images in `folder` (shot names relative to it).
+pub fn load_shots_from(
+    dir: &Path,
+    folder: &Path,
     shots: Vec<Shot>,
     split: &str,
     opts: &CaptureOptions,
@@ -169,7 +194,6 @@ pub fn load_shots(
             shots.len()
         )));
     }
-    let folder = image_folder(dir, opts.images.as_deref())?;
     let keep: Vec<Shot> = shots
         .into_iter()
         .enumerate()
@@ -191,7 +215,7 @@ pub fn load_shots(
     }
     let frames: Vec<Frame> = keep
         .par_iter()
-        .map(|s| load_frame(&folder, s, opts.downscale))
+        .map(|s| load_frame(folder, s, opts.downscale))
         .collect::<Result<_>>()?;
     let (width, height) = match frames.first() {
         Some(f) => (f.camera.width, f.camera.height),
@@ -223,6 +247,7 @@ pub fn load_shots(
         height,
         background: [0.0; 3],
         split: split.into(),
+        points: Vec::new(),
     })
 }
 
@@ -330,8 +355,8 @@ pub fn pinhole_crop(
             }
         })
     };
-    let (mut lo, mut hi) = (1.0, 1.0);
-    if !fits(1.0) {
+    let mut hi = 1.0f64;
+    if !fits(hi) {
         while !fits(hi) {
             hi *= 2.0;
             if hi > 64.0 {
@@ -342,7 +367,7 @@ pub fn pinhole_crop(
                 );
             }
         }
-        lo = hi / 2.0;
+        let mut lo = hi / 2.0;
         while hi - lo > 1e-9 * hi {
             let mid = 0.5 * (lo + hi);
             if fits(mid) {
@@ -352,7 +377,6 @@ pub fn pinhole_crop(
             }
         }
     }
-    let _ = lo;
     Ok((hi * fx, hi * fy, cx, cy))
 }
 

@@ -17,8 +17,9 @@
 //! points3D.txt  POINT3D_ID X Y Z R G B ERROR IMAGE_ID POINT2D_IDX ...
 //! ```
 //!
-//! `#` starts a comment line. The pose `(q, t)` maps world to camera: `x_cam = R(q)·x_world
-//! + t`, camera axes x right, y down, z forward (as [`Camera`](super::Camera)). A missing
+//! `#` starts a comment line. The pose `(q, t)` maps world to camera (`x_cam =
+//! R(q)·x_world + t`), camera axes x right, y down, z forward (as
+//! [`Camera`](super::Camera)). A missing
 //! `points3D` file, points without tracks and images without 2-D points are all fine
 //! (nerfstudio exports have none). Errors name the file and the entry.
 
@@ -550,7 +551,7 @@ fn parse_images_txt(text: &str, path: &Path) -> Result<BTreeMap<u32, ColmapImage
         let mut points2d = Vec::new();
         if let Some(&(pline, p)) = lines.get(k + 1) {
             let v: Vec<&str> = p.split_whitespace().collect();
-            if v.len() % 3 != 0 {
+            if !v.len().is_multiple_of(3) {
                 return Err(invalid(
                     path,
                     format!(
@@ -590,7 +591,7 @@ fn parse_points_txt(text: &str, path: &Path) -> Result<Vec<ColmapPoint>> {
     let mut out = Vec::new();
     for (line, l) in data_lines(text, false) {
         let v: Vec<&str> = l.split_whitespace().collect();
-        if v.len() < 8 || (v.len() - 8) % 2 != 0 {
+        if v.len() < 8 || !(v.len() - 8).is_multiple_of(2) {
             return Err(invalid(
                 path,
                 format!(

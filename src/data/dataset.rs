@@ -27,6 +27,9 @@ pub struct Dataset {
     pub background: [f32; 3],
     /// Split name (`train`, `val`, `test`, ...).
     pub split: String,
+    /// The capture's sparse 3-D points in world coordinates (COLMAP `points3D`; empty
+    /// for synthetic data): one way to bound the scene ([`crate::train::bounds`]).
+    pub points: Vec<[f64; 3]>,
 }
 
 impl Dataset {

@@ -14,6 +14,7 @@ mod dataset;
 pub mod demo;
 pub mod image;
 pub mod lens;
+pub mod nerfstudio;
 
 /// The pinhole camera (its home is [`crate::camera`]; re-exported for loaders).
 pub use crate::camera::Camera;
@@ -27,11 +28,13 @@ pub enum Format {
     Blender,
     /// A COLMAP sparse model (`sparse/0`) + photos.
     Colmap,
+    /// nerfstudio's `transforms.json` + photos.
+    Nerfstudio,
 }
 
 /// The layout of the dataset in `dir`: COLMAP when it has a sparse model
-/// ([`colmap::find_model`]) and no `transforms_*.json`, else Blender (whose loader
-/// explains what is missing).
+/// ([`colmap::find_model`]) and no `transforms_*.json`, else nerfstudio when it has a
+/// `transforms.json`, else Blender (whose loader explains what is missing).
 pub fn detect_format(dir: &std::path::Path) -> Format {
     let transforms = std::fs::read_dir(dir).is_ok_and(|entries| {
         entries.filter_map(|e| e.ok()).any(|e| {
@@ -42,6 +45,8 @@ pub fn detect_format(dir: &std::path::Path) -> Format {
     });
     if !transforms && colmap::find_model(dir).is_some() {
         Format::Colmap
+    } else if !transforms && dir.join("transforms.json").is_file() {
+        Format::Nerfstudio
     } else {
         Format::Blender
     }
@@ -60,6 +65,14 @@ pub fn load_split(
     match detect_format(dir) {
         Format::Blender => blender::load_split(dir, split, downscale, background),
         Format::Colmap => capture::load_colmap(
+            dir,
+            split,
+            &CaptureOptions {
+                downscale,
+                ..CaptureOptions::default()
+            },
+        ),
+        Format::Nerfstudio => capture::load_nerfstudio(
             dir,
             split,
             &CaptureOptions {

@@ -21,9 +21,21 @@ pub struct TrainConfig {
     /// Level of the initial dense grid (paper h_lv: 2^level voxels per edge); voxels no
     /// training camera sees are removed before training.
     pub grid_level: u32,
-    /// Scene box: centre and edge length (NeRF-synthetic: [-1.5, 1.5]³).
+    /// Main region: centre and edge length (NeRF-synthetic: [-1.5, 1.5]³). With a `bound`
+    /// other than "box" they are derived from the training cameras when the run starts
+    /// (and saved resolved in config.json).
     pub center: [f32; 3],
     pub extent: f32,
+    /// How the main region is chosen: "box" (`center`/`extent` as set), or from the
+    /// training cameras: "auto", "camera_median", "camera_max", "forward"
+    /// ([`super::bounds`]).
+    pub bound: String,
+    /// Background shells around the main region (paper h_out; 0: a bounded object). The
+    /// root cube is the main region's times 2^outside_level.
+    pub outside_level: u32,
+    /// Background voxels at the start, as a multiple of the main region's (paper
+    /// h_ratio).
+    pub init_out_ratio: f32,
     /// Background composited behind the voxels (the dataset's).
     pub background: [f32; 3],
     /// Final SH degree, raised by one every `sh_every` of the run from 0.
@@ -120,6 +132,9 @@ impl Default for TrainConfig {
             grid_level: 6,
             center: [0.0; 3],
             extent: 3.0,
+            bound: "box".into(),
+            outside_level: 0,
+            init_out_ratio: 2.0,
             background: [1.0; 3],
             sh_degree: 3,
             sh_every: 0.05,
@@ -181,6 +196,17 @@ pub const PRESETS: &[(&str, &str)] = &[
          and subdivision (default)",
     ),
     (
+        "real",
+        "real captures, unbounded (Mip-NeRF 360-like; the default for COLMAP data): main \
+         region from the cameras, 5 background shell levels holding twice the main \
+         region's voxels, black background, distortion loss 0.1 from half the run",
+    ),
+    (
+        "forward",
+        "real forward-facing captures (LLFF): the real preset with the main region in \
+         front of the cameras",
+    ),
+    (
         "quick",
         "short runs on CPU devices: the synthetic configuration without supersampling \
          (the density learning rate scales with the run length in every preset: 0.1 up to \
@@ -225,6 +251,12 @@ impl TrainConfig {
         let mut c = TrainConfig::default();
         match name {
             "synthetic" => {}
+            "real" | "forward" => {
+                c.bound = if name == "real" { "auto" } else { "forward" }.into();
+                c.outside_level = 5;
+                c.background = [0.0; 3];
+                c.lambda_dist = 0.1;
+            }
             "quick" => {
                 c.grid_level = 6;
                 c.ss = 1.0;
@@ -284,6 +316,22 @@ impl TrainConfig {
         }
         if !(self.ss.is_finite() && (1.0..=4.0).contains(&self.ss)) {
             return bad("ss", "must be in [1, 4]");
+        }
+        if !super::bounds::BOUND_MODES.contains(&self.bound.as_str()) {
+            return bad(
+                "bound",
+                &format!("must be one of {}", super::bounds::BOUND_MODES.join(", ")),
+            );
+        }
+        if self.outside_level > 8 || self.outside_level + self.grid_level > crate::scene::MAX_LEVEL
+        {
+            return bad(
+                "outside_level",
+                "must be in 0..=8, and outside_level + grid_level at most 16",
+            );
+        }
+        if !(self.init_out_ratio.is_finite() && self.init_out_ratio >= 0.0) {
+            return bad("init_out_ratio", "must be ≥ 0");
         }
         if !(self.extent.is_finite() && self.extent > 0.0)
             || self.center.iter().any(|c| !c.is_finite())

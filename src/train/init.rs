@@ -12,11 +12,11 @@ use super::trainer::Trainer;
 use super::views::TrainViews;
 use crate::adapt::stats::StatsPass;
 use crate::adapt::topology::Topology;
-use crate::adapt::visible_only;
+use crate::adapt::{shells, visible_only};
 use crate::data::Dataset;
 use crate::gpu::{Buffer, Context};
 use crate::raster::Renderer;
-use crate::scene::{octpath_from_ijk, Scene, SceneGpu};
+use crate::scene::{ijk_from_octpath, Scene, SceneGpu};
 use crate::{Error, Result};
 
 /// Adam moments of one parameter group.
@@ -35,33 +35,75 @@ impl Moments {
     }
 }
 
-/// A uniform grid of `8^level` voxels filling the box (before visibility pruning).
+/// The starting grid before visibility pruning: `8^grid_level` voxels filling the main
+/// region (`center`, `extent`); with background shells (`outside_level` > 0) the root
+/// cube is `2^outside_level` times larger and the grid its central part.
 pub fn uniform_grid(cfg: &TrainConfig) -> Result<Scene> {
-    let l = cfg.grid_level;
-    let n = 1u32 << l;
-    let mut paths = Vec::with_capacity((n as usize).pow(3));
-    for i in 0..n {
-        for j in 0..n {
-            for k in 0..n {
-                paths.push(octpath_from_ijk([i, j, k], l));
-            }
-        }
-    }
-    paths.sort_unstable();
-    let levels = vec![l as u8; paths.len()];
-    let mut scene = Scene::from_voxels(
-        cfg.center,
-        cfg.extent,
-        cfg.sh_degree,
-        paths,
-        levels,
-        cfg.geo_init,
-    )?;
+    init_scene(cfg, &shells::inside_grid(cfg.outside_level, cfg.grid_level))
+}
+
+/// The root cube's edge: the main region's times `2^outside_level`.
+pub fn root_extent(cfg: &TrainConfig) -> f32 {
+    cfg.extent * (1u32 << cfg.outside_level) as f32
+}
+
+/// A scene of `cells` with the configuration's initial parameters.
+fn init_scene(cfg: &TrainConfig, cells: &[([u32; 3], u32)]) -> Result<Scene> {
+    let mut scene = shells::scene_of(cfg.center, root_extent(cfg), cells, cfg.geo_init)?;
+    scene.sh_degree = cfg.sh_degree;
+    scene.shs = vec![0.0; scene.num_voxels() * scene.shs_per_voxel() * 3];
     scene.background = cfg.background;
     scene.supersample = cfg.ss;
     let dc = (cfg.sh0_init - 0.5) / 0.282_094_8;
     scene.sh0.iter_mut().for_each(|c| *c = [dc; 3]);
     Ok(scene)
+}
+
+/// The starting layout: the main region's grid without the voxels no training view
+/// sees, plus (with `outside_level` > 0) the background shells ([`shells`]).
+fn initial_layout(
+    ctx: &Context,
+    cfg: &TrainConfig,
+    cams: &[crate::camera::Camera],
+    renderer: &mut Renderer,
+    stats: &mut StatsPass,
+    topology: &mut Topology,
+) -> Result<Scene> {
+    check_grid_fits(ctx, cfg)?;
+    let dense = uniform_grid(cfg)?;
+    let inside = visible_only(ctx, dense, cams, renderer, stats, topology)?;
+    if cfg.outside_level == 0 {
+        return Ok(inside);
+    }
+    let started = std::time::Instant::now();
+    let mut cells: Vec<([u32; 3], u32)> = inside
+        .octpath
+        .iter()
+        .zip(&inside.octlevel)
+        .map(|(&p, &l)| (ijk_from_octpath(p, l as u32), l as u32))
+        .collect();
+    let want = (inside.num_voxels() as f64 * cfg.init_out_ratio as f64).ceil() as usize;
+    let (outside, report) = shells::shell_layout(
+        cfg.center,
+        root_extent(cfg),
+        cfg.outside_level,
+        cfg.outside_level + cfg.grid_level,
+        want,
+        cams,
+        renderer,
+        stats,
+    )?;
+    eprintln!(
+        "background: {} shell voxels (levels ≤ {}, {} subdivision rounds, {:.1} s) around \
+         {} main-region voxels",
+        report.voxels,
+        report.max_level,
+        report.rounds,
+        started.elapsed().as_secs_f64(),
+        cells.len()
+    );
+    cells.extend(outside);
+    init_scene(cfg, &cells)
 }
 
 /// Refuses, before building it, a uniform grid whose largest per-voxel buffer (the
@@ -140,11 +182,7 @@ impl Trainer {
         let cams = train.cameras();
         let host = match init {
             Some(s) => s,
-            None => {
-                check_grid_fits(ctx, &cfg)?;
-                let dense = uniform_grid(&cfg)?;
-                visible_only(ctx, dense, &cams, &mut renderer, &mut stats, &mut topology)?
-            }
+            None => initial_layout(ctx, &cfg, &cams, &mut renderer, &mut stats, &mut topology)?,
         };
         host.validate()?;
         let budget = voxel_budget(ctx, &cfg);

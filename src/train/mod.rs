@@ -3,6 +3,7 @@
 
 mod adapt_step;
 pub mod backward;
+pub mod bounds;
 pub mod config;
 mod init;
 pub mod loss;

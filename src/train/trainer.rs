@@ -30,7 +30,7 @@ use crate::raster::{RenderOptions, Renderer};
 use crate::scene::{Scene, SceneGpu};
 use crate::{Error, Result};
 
-pub use super::init::{bytes_per_voxel, uniform_grid, voxel_budget};
+pub use super::init::{bytes_per_voxel, root_extent, uniform_grid, voxel_budget};
 pub use crate::adapt::{visible_only, AdaptReport};
 
 /// Loss values of one iteration (read back only on logged iterations).
