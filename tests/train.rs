@@ -328,3 +328,62 @@ fn training_views_pack_into_chunks() {
     assert!(e.to_string().contains("v3"), "{e}");
     finish(&ctx);
 }
+
+/// A capture trains the same whatever its world's scale and offset (COLMAP's are
+/// arbitrary): the demo scene's cameras moved 10⁴ units away and the scene shrunk to a
+/// thousandth give the same main region in the model frame, the same layout and the same
+/// held-out PSNR, with the unbounded preset (main region from the cameras, background
+/// shells) at a small size.
+#[test]
+fn unbounded_training_is_invariant_to_the_world_frame() {
+    let ctx = context();
+    let dir = demo_data("world", 32);
+    let train = data::load_split(&dir, "train", 1.0, [0.0; 3]).unwrap();
+    let val = data::load_split(&dir, "val", 1.0, [0.0; 3]).unwrap();
+    let moved = |ds: &data::Dataset, offset: f64, scale: f64| {
+        let mut ds = ds.clone();
+        for f in &mut ds.frames {
+            for row in &mut f.camera.c2w {
+                row[3] = row[3] * scale + offset;
+            }
+            f.camera.near *= scale;
+        }
+        ds
+    };
+    let mut results = Vec::new();
+    for (offset, scale) in [(0.0, 1.0), (1.0e4, 1.0e-3)] {
+        let mut t = moved(&train, offset, scale);
+        let mut v = moved(&val, offset, scale);
+        let mut cfg = TrainConfig::preset("real").unwrap();
+        cfg.iters = 150;
+        cfg.grid_level = 4;
+        cfg.outside_level = 2;
+        cfg.ss = 1.0;
+        let region = svraster::train::bounds::resolve_world(&mut cfg, &t)
+            .unwrap()
+            .unwrap();
+        assert_eq!(region.mode, "camera_median");
+        t.to_model(&cfg.world());
+        let mut tr = Trainer::new(&ctx, cfg.clone(), &t, None).unwrap();
+        for i in 0..cfg.iters {
+            tr.step(i + 1 == cfg.iters).unwrap();
+        }
+        let scene = tr.scene().unwrap();
+        v.to_model(&scene.world);
+        let psnr = mean_psnr(&ctx, &scene, &v);
+        println!(
+            "offset {offset:e}, scale {scale:e}: region radius {:.6e}, {} voxels, val PSNR {psnr:.3} dB",
+            region.radius,
+            scene.num_voxels()
+        );
+        results.push((region.radius / scale, scene.num_voxels(), psnr));
+    }
+    let (a, b) = (results[0], results[1]);
+    assert!((a.0 - b.0).abs() < 1e-6 * a.0, "{a:?} vs {b:?}");
+    // Pruning thresholds see float atomics' summation order: a few voxels may differ.
+    assert!(a.1.abs_diff(b.1) * 100 <= a.1, "layouts differ: {a:?} vs {b:?}");
+    assert!((a.2 - b.2).abs() < 0.05, "{a:?} vs {b:?}");
+    assert!(a.2 > 14.0, "{a:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+    finish(&ctx);
+}

@@ -563,6 +563,7 @@ impl Topology {
             sh_degree: scene.sh_degree,
             background: scene.background,
             supersample: scene.supersample,
+            world: scene.world,
             octpath,
             octlevel,
             grid_keys,

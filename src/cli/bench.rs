@@ -235,7 +235,7 @@ fn bench_render(
         bail!("--runs and --views must be at least 1");
     }
     let scene = super::render::load_model(model)?;
-    let mut cams = super::render::split_cameras(data, split, downscale, scene.background)?;
+    let mut cams = super::render::split_cameras(data, split, downscale, &scene)?;
     cams.truncate(views);
     if cams.is_empty() {
         bail!("split `{split}` of {} has no frames", data.display());

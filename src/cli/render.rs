@@ -46,6 +46,7 @@ pub fn write_image(
     img: &Image,
     depth: bool,
     normal: bool,
+    world: &svraster::scene::WorldFrame,
 ) -> anyhow::Result<()> {
     image::save_rgb_png(
         &out.join(format!("{name}.png")),
@@ -58,7 +59,13 @@ pub fn write_image(
             .depth
             .iter()
             .zip(&img.alpha)
-            .map(|(&d, &a)| if a > 0.5 { d / a } else { f32::NAN })
+            .map(|(&d, &a)| {
+                if a > 0.5 {
+                    world.length_to_world(f64::from(d / a)) as f32
+                } else {
+                    f32::NAN
+                }
+            })
             .collect();
         let mut valid: Vec<f32> = d.iter().copied().filter(|v| v.is_finite()).collect();
         valid.sort_by(|a, b| a.total_cmp(b));
@@ -179,7 +186,8 @@ pub struct RenderArgs {
 /// Renders every frame of a split; returns (mean PSNR against the photos, ms per frame).
 pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)> {
     let scene = load_model(&a.model)?;
-    let ds = data::load_split(&a.data, &a.split, a.downscale, scene.background)?;
+    let mut ds = data::load_split(&a.data, &a.split, a.downscale, scene.background)?;
+    ds.to_model(&scene.world);
     if ds.frames.is_empty() {
         bail!("split `{}` of {} has no frames", a.split, a.data.display());
     }
@@ -206,7 +214,7 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
         ms += t.elapsed().as_secs_f64() * 1e3;
         let p = svraster::eval::psnr(&img.rgb, &f.rgb);
         total_psnr += p;
-        write_image(&a.out, &names[i], &img, a.depth, a.normal)?;
+        write_image(&a.out, &names[i], &img, a.depth, a.normal, &scene.world)?;
         progress.update(i as u64 + 1, || format!("{}: PSNR {p:.2} dB", f.name));
     }
     progress.finish();
@@ -229,8 +237,9 @@ pub fn split_cameras(
     data: &Path,
     split: &str,
     downscale: f64,
-    background: [f32; 3],
+    scene: &svraster::scene::Scene,
 ) -> anyhow::Result<Vec<Camera>> {
-    let ds = data::load_split(data, split, downscale, background)?;
+    let mut ds = data::load_split(data, split, downscale, scene.background)?;
+    ds.to_model(&scene.world);
     Ok(ds.frames.into_iter().map(|f| f.camera).collect())
 }

@@ -181,23 +181,25 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             );
         }
     }
-    if init.is_none() && cfg.bound != "box" {
-        let r = svraster::train::bounds::main_region(&train.cameras(), &train.points, &cfg.bound)?;
-        cfg.center = r.center.map(|v| v as f32);
-        cfg.extent = (2.0 * r.radius) as f32;
-        eprintln!(
-            "main region ({} from the {} training cameras): centre [{:.4}, {:.4}, {:.4}], \
-             edge {:.4}; {} background shell levels (root edge {:.4})",
-            r.mode,
-            train.frames.len(),
-            cfg.center[0],
-            cfg.center[1],
-            cfg.center[2],
-            cfg.extent,
-            cfg.outside_level,
-            svraster::train::trainer::root_extent(&cfg)
-        );
+    let mut train = train;
+    if init.is_none() {
+        if let Some(r) = svraster::train::bounds::resolve_world(&mut cfg, &train)? {
+            eprintln!(
+                "main region ({} from the {} training cameras): centre [{:.4}, {:.4}, {:.4}], \
+                 edge {:.4} (world units); trained in its frame (edge 2), with {} background \
+                 shell levels (root edge {})",
+                r.mode,
+                train.frames.len(),
+                r.center[0],
+                r.center[1],
+                r.center[2],
+                2.0 * r.radius,
+                cfg.outside_level,
+                svraster::train::trainer::root_extent(&cfg)
+            );
+        }
     }
+    train.to_model(&cfg.world());
     if init.is_none() {
         eprintln!(
             "initialising: a level-{} grid ({} voxels), keeping those the {} training views \
@@ -386,7 +388,8 @@ pub fn evaluate(
     opts: &RenderOptions,
     quiet: bool,
 ) -> anyhow::Result<EvalReport> {
-    let ds = data::load_split(data, split, downscale, scene.background)?;
+    let mut ds = data::load_split(data, split, downscale, scene.background)?;
+    ds.to_model(&scene.world);
     if ds.frames.is_empty() {
         bail!("split `{split}` of {} has no frames", data.display());
     }

@@ -33,6 +33,19 @@ pub struct Dataset {
 }
 
 impl Dataset {
+    /// Maps the cameras and points into a model's frame (a no-op for the identity).
+    pub fn to_model(&mut self, world: &crate::scene::WorldFrame) {
+        if world.is_identity() {
+            return;
+        }
+        for f in &mut self.frames {
+            f.camera = world.camera_to_model(&f.camera);
+        }
+        for p in &mut self.points {
+            *p = world.point_to_model(*p);
+        }
+    }
+
     /// The cameras of all frames, in order.
     pub fn cameras(&self) -> Vec<Camera> {
         self.frames.iter().map(|f| f.camera.clone()).collect()

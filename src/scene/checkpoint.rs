@@ -41,6 +41,8 @@
 //! | `sh_degree`    | `0`, `1`, `2` or `3`                                        |
 //! | `background`   | JSON array `[r,g,b]`: background colour                     |
 //! | `supersample`  | number in [1, 8]: default render supersampling (optional: 1) |
+//! | `world_center` | JSON array `[x,y,z]` (optional: `[0,0,0]`); with `world_scale` (optional: 1) the capture's frame: model = (world − world_center) / world_scale; cameras of the capture are mapped so before rendering, depths scale back by `world_scale` |
+//! | `world_scale`  | number > 0 (optional: 1), written as f64 text               |
 //!
 //! Numbers are written in the shortest form that reads back as the identical `f32`.
 //! Other metadata keys are ignored on load. Loading is strict: unknown tensors, gaps or
@@ -170,6 +172,17 @@ fn encode_header(scene: &Scene) -> Result<Vec<u8>> {
     meta.insert("sh_degree".into(), scene.sh_degree.to_string().into());
     meta.insert("background".into(), vec3(scene.background).into());
     meta.insert("supersample".into(), num(scene.supersample).into());
+    if !scene.world.is_identity() {
+        let c = scene.world.center;
+        meta.insert(
+            "world_center".into(),
+            format!("[{:?},{:?},{:?}]", c[0], c[1], c[2]).into(),
+        );
+        meta.insert(
+            "world_scale".into(),
+            format!("{:?}", scene.world.scale).into(),
+        );
+    }
     header.insert("__metadata__".into(), Value::Object(meta));
     let mut offset = 0usize;
     for ((name, dtype, _), (shape, bytes)) in TENSORS.iter().zip(shapes(scene)) {
@@ -369,6 +382,22 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
             "metadata `supersample` is {supersample}, must be in [1, 8]"
         ));
     }
+    let world = super::WorldFrame {
+        center: match meta.get("world_center") {
+            None => [0.0; 3],
+            Some(_) => parse_vec3_f64("world_center", meta_str("world_center")?)?,
+        },
+        scale: match meta.get("world_scale") {
+            None => 1.0,
+            Some(_) => parse_f64("world_scale", meta_str("world_scale")?)?,
+        },
+    };
+    if world.scale <= 0.0 {
+        return Err(format!(
+            "metadata `world_scale` is {}, must be > 0",
+            world.scale
+        ));
+    }
 
     // --- tensor entries
     let mut infos = Vec::with_capacity(TENSORS.len());
@@ -503,6 +532,7 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
     scene.sh_degree = sh_degree;
     scene.background = background;
     scene.supersample = supersample;
+    scene.world = world;
     scene.geo = geo;
     scene.sh0 = sh0;
     scene.shs = shs;
@@ -583,7 +613,28 @@ fn parse_f32(key: &str, s: &str) -> Msg<f32> {
     Ok(v)
 }
 
-fn parse_vec3(key: &str, s: &str) -> Msg<[f32; 3]> {
+fn parse_f64(key: &str, s: &str) -> Msg<f64> {
+    let v: f64 = s
+        .trim()
+        .parse()
+        .map_err(|_| format!("metadata `{key}`: `{s}` is not a number"))?;
+    if !v.is_finite() {
+        return Err(format!("metadata `{key}`: `{s}` is not finite"));
+    }
+    Ok(v)
+}
+
+fn parse_vec3_f64(key: &str, s: &str) -> Msg<[f64; 3]> {
+    let v = parse_list(key, s)?;
+    Ok([
+        parse_f64(key, v[0])?,
+        parse_f64(key, v[1])?,
+        parse_f64(key, v[2])?,
+    ])
+}
+
+/// The three comma-separated items of a JSON array text `[x,y,z]`.
+fn parse_list<'a>(key: &str, s: &'a str) -> Msg<Vec<&'a str>> {
     let inner = s
         .trim()
         .strip_prefix('[')
@@ -595,6 +646,11 @@ fn parse_vec3(key: &str, s: &str) -> Msg<[f32; 3]> {
             "metadata `{key}` is `{s}`, expected exactly 3 numbers [x,y,z]"
         ));
     }
+    Ok(parts)
+}
+
+fn parse_vec3(key: &str, s: &str) -> Msg<[f32; 3]> {
+    let parts = parse_list(key, s)?;
     Ok([
         parse_f32(key, parts[0])?,
         parse_f32(key, parts[1])?,

@@ -93,6 +93,64 @@ pub fn voxel_corner_keys(path: u64, level: u32) -> [u64; 8] {
     })
 }
 
+/// The similarity from a capture's world coordinates to the model's: `model = (world −
+/// center) / scale` (rotation-free). Real captures are trained in a frame where the main
+/// region is `[-1, 1]³`, so COLMAP's arbitrary world scale does not change how densities,
+/// step lengths and the near plane act; synthetic scenes use the identity.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WorldFrame {
+    pub center: [f64; 3],
+    pub scale: f64,
+}
+
+impl WorldFrame {
+    pub const IDENTITY: WorldFrame = WorldFrame {
+        center: [0.0; 3],
+        scale: 1.0,
+    };
+
+    pub fn is_identity(&self) -> bool {
+        *self == WorldFrame::IDENTITY
+    }
+
+    /// A world point in model coordinates.
+    pub fn point_to_model(&self, p: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|a| (p[a] - self.center[a]) / self.scale)
+    }
+
+    /// A world camera in model coordinates (same rotation, intrinsics and near plane in
+    /// model units).
+    pub fn camera_to_model(&self, cam: &crate::camera::Camera) -> crate::camera::Camera {
+        if self.is_identity() {
+            return cam.clone();
+        }
+        let mut c = cam.clone();
+        let t = self.point_to_model(cam.origin());
+        for (row, t) in c.c2w.iter_mut().zip(t) {
+            row[3] = t;
+        }
+        c
+    }
+
+    /// A model-space length (e.g. a depth) in world units.
+    pub fn length_to_world(&self, d: f64) -> f64 {
+        d * self.scale
+    }
+
+    /// Checks the frame is usable.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.scale.is_finite() && self.scale > 0.0)
+            || self.center.iter().any(|v| !v.is_finite())
+        {
+            return Err(Error::Invalid(format!(
+                "world frame: centre {:?} and scale {} must be finite, scale > 0",
+                self.center, self.scale
+            )));
+        }
+        Ok(())
+    }
+}
+
 /// A sparse-voxel radiance field.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Scene {
@@ -108,6 +166,9 @@ pub struct Scene {
     /// A model trained on supersampled, downsampled frames (the paper's h_ss = 1.5) is
     /// fitted to that anti-aliased image formation, and renders it best the same way.
     pub supersample: f32,
+    /// Where the model sits in its capture's world (cameras are mapped into the model's
+    /// frame before rendering).
+    pub world: WorldFrame,
     /// Per voxel: Morton code (Listing 1).
     pub octpath: Vec<u64>,
     /// Per voxel: octree level 1..=16.
@@ -157,6 +218,7 @@ impl Scene {
             sh_degree,
             background: [0.0; 3],
             supersample: 1.0,
+            world: WorldFrame::IDENTITY,
             geo: vec![geo_init; keys.len()],
             grid_keys: keys,
             corners: Vec::new(),
@@ -260,6 +322,7 @@ impl Scene {
         if self.background.iter().any(|c| !c.is_finite()) {
             return bad(format!("background is not finite: {:?}", self.background));
         }
+        self.world.validate()?;
         if !(1.0..=8.0).contains(&self.supersample) {
             return bad(format!(
                 "supersample must be in [1, 8], got {}",

@@ -36,6 +36,25 @@ pub const BOUND_MODES: [&str; 6] = [
     "points",
 ];
 
+/// For a run whose `bound` is not "box": the main region of the training data, made the
+/// run's world frame (model = (world − centre) / radius, so the region is [-1, 1]³:
+/// `center` 0, `extent` 2). Returns the region found (None for "box"). The dataset is
+/// left in world coordinates: map it with [`Dataset::to_model`](crate::data::Dataset).
+pub fn resolve_world(
+    cfg: &mut super::config::TrainConfig,
+    train: &crate::data::Dataset,
+) -> Result<Option<MainRegion>> {
+    if cfg.bound == "box" {
+        return Ok(None);
+    }
+    let r = main_region(&train.cameras(), &train.points, &cfg.bound)?;
+    cfg.world_center = r.center;
+    cfg.world_scale = r.radius;
+    cfg.center = [0.0; 3];
+    cfg.extent = 2.0;
+    Ok(Some(r))
+}
+
 /// A main region: centre, half edge, and the mode that produced it (`auto` resolved).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MainRegion {

@@ -36,6 +36,11 @@ pub struct TrainConfig {
     /// Background voxels at the start, as a multiple of the main region's (paper
     /// h_ratio).
     pub init_out_ratio: f32,
+    /// The capture's world frame (model = (world − world_center) / world_scale): set when
+    /// the main region comes from the cameras, which then train in a frame where it is
+    /// [-1, 1]³ (`center` 0, `extent` 2); identity for a "box" bound.
+    pub world_center: [f64; 3],
+    pub world_scale: f64,
     /// Background composited behind the voxels (the dataset's).
     pub background: [f32; 3],
     /// Final SH degree, raised by one every `sh_every` of the run from 0.
@@ -135,6 +140,8 @@ impl Default for TrainConfig {
             bound: "box".into(),
             outside_level: 0,
             init_out_ratio: 2.0,
+            world_center: [0.0; 3],
+            world_scale: 1.0,
             background: [1.0; 3],
             sh_degree: 3,
             sh_every: 0.05,
@@ -272,6 +279,14 @@ impl TrainConfig {
         Ok(c)
     }
 
+    /// The capture's world frame ([`crate::scene::WorldFrame`]).
+    pub fn world(&self) -> crate::scene::WorldFrame {
+        crate::scene::WorldFrame {
+            center: self.world_center,
+            scale: self.world_scale,
+        }
+    }
+
     /// Applies `key=value` (value parsed as JSON, or as a string if that fails).
     pub fn set(&mut self, kv: &str) -> Result<()> {
         let (k, v) = kv
@@ -328,6 +343,12 @@ impl TrainConfig {
             return bad(
                 "outside_level",
                 "must be in 0..=8, and outside_level + grid_level at most 16",
+            );
+        }
+        if self.world().validate().is_err() {
+            return bad(
+                "world_center/world_scale",
+                "must be finite, world_scale > 0",
             );
         }
         if !(self.init_out_ratio.is_finite() && self.init_out_ratio >= 0.0) {

@@ -54,6 +54,7 @@ fn init_scene(cfg: &TrainConfig, cells: &[([u32; 3], u32)]) -> Result<Scene> {
     scene.shs = vec![0.0; scene.num_voxels() * scene.shs_per_voxel() * 3];
     scene.background = cfg.background;
     scene.supersample = cfg.ss;
+    scene.world = cfg.world();
     let dc = (cfg.sh0_init - 0.5) / 0.282_094_8;
     scene.sh0.iter_mut().for_each(|c| *c = [dc; 3]);
     Ok(scene)
