@@ -772,3 +772,40 @@ fn nerfstudio_fixture() {
         .to_string();
     assert!(e.contains("EQUIRECTANGULAR"), "{e}");
 }
+
+/// LLFF's poses_bounds.npy of the flower against its COLMAP model (the README of the
+/// data: images.bin was rebuilt from these poses): same camera centres and axes after
+/// LLFF's [down, right, back] → OpenCV conversion, same focal length; the COLMAP model
+/// wins the format detection; the LLFF depth bounds become points that bound the scene.
+#[test]
+fn real_llff_flower_poses_bounds_match_colmap() {
+    let Some(dir) = shared("llff_flower") else {
+        return;
+    };
+    assert_eq!(
+        svraster::data::detect_format(&dir),
+        svraster::data::Format::Colmap
+    );
+    let (folder, rows) = svraster::data::llff::shots(&dir, None).unwrap();
+    assert_eq!(folder, dir.join("images_8"));
+    assert_eq!(rows.len(), 34);
+    let rec = colmap::read_model(&dir.join("sparse/0")).unwrap();
+    let col = capture::colmap_shots(&rec, &dir.join("sparse/0")).unwrap();
+    let mut worst = 0.0f64;
+    for ((l, bounds), c) in rows.iter().zip(&col) {
+        assert_eq!(l.name, c.name);
+        assert_eq!(l.lens.fx, c.lens.fx);
+        assert_eq!((l.lens.cx, l.lens.cy), (c.lens.cx, c.lens.cy));
+        assert!(bounds[0] > 0.0 && bounds[1] > bounds[0]);
+        for (a, b) in l.c2w.iter().flatten().zip(c.c2w.iter().flatten()) {
+            worst = worst.max((a - b).abs());
+        }
+    }
+    assert!(worst < 1e-9, "LLFF vs COLMAP pose difference {worst:e}");
+    let ds = capture::load_llff(&dir, "test", &CaptureOptions::default()).unwrap();
+    assert_eq!(ds.frames.len(), 5);
+    assert_eq!(ds.points.len(), 34 * 10);
+    let r = main_region(&ds.cameras(), &ds.points, "auto").unwrap();
+    println!("flower from LLFF bounds: {r:?}");
+    assert_eq!(r.mode, "points");
+}

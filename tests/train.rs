@@ -381,7 +381,10 @@ fn unbounded_training_is_invariant_to_the_world_frame() {
     let (a, b) = (results[0], results[1]);
     assert!((a.0 - b.0).abs() < 1e-6 * a.0, "{a:?} vs {b:?}");
     // Pruning thresholds see float atomics' summation order: a few voxels may differ.
-    assert!(a.1.abs_diff(b.1) * 100 <= a.1, "layouts differ: {a:?} vs {b:?}");
+    assert!(
+        a.1.abs_diff(b.1) * 100 <= a.1,
+        "layouts differ: {a:?} vs {b:?}"
+    );
     assert!((a.2 - b.2).abs() < 0.05, "{a:?} vs {b:?}");
     assert!(a.2 > 14.0, "{a:?}");
     let _ = std::fs::remove_dir_all(&dir);

@@ -40,6 +40,7 @@ pub fn default_preset(a: &TrainArgs) -> String {
         match data::detect_format(&a.data) {
             data::Format::Blender => "synthetic",
             data::Format::Colmap | data::Format::Nerfstudio => "real",
+            data::Format::Llff => "forward",
         }
         .into()
     })

@@ -162,6 +162,30 @@ pub fn load_nerfstudio(dir: &Path, split: &str, opts: &CaptureOptions) -> Result
     load_shots_from(dir, &folder, shots, split, opts)
 }
 
+/// Loads split `split` of an LLFF capture in `dir` (`poses_bounds.npy`). Its depth
+/// bounds become the dataset's points: each camera's centre and corner rays at its near
+/// and far depth (what bounds the scene, as sparse points would).
+pub fn load_llff(dir: &Path, split: &str, opts: &CaptureOptions) -> Result<Dataset> {
+    let (folder, rows) = super::llff::shots(dir, opts.images.as_deref())?;
+    let mut points = Vec::with_capacity(rows.len() * 10);
+    for (s, [near, far]) in &rows {
+        let (fx, fy, cx, cy) = s.lens.pinhole();
+        let (w, h) = (s.lens_size.0 as f64, s.lens_size.1 as f64);
+        for (x, y) in [(cx, cy), (0.0, 0.0), (w, 0.0), (0.0, h), (w, h)] {
+            let d = [(x - cx) / fx, (y - cy) / fy, 1.0];
+            for z in [*near, *far] {
+                points.push(std::array::from_fn(|r| {
+                    s.c2w[r][3] + z * (s.c2w[r][0] * d[0] + s.c2w[r][1] * d[1] + s.c2w[r][2])
+                }));
+            }
+        }
+    }
+    let shots = rows.into_iter().map(|r| r.0).collect();
+    let mut ds = load_shots_from(dir, &folder, shots, split, opts)?;
+    ds.points = points;
+    Ok(ds)
+}
+
 /// Loads the frames of `split` from `shots` (sorted): images, lens removal, downscaling.
 pub fn load_shots(
     dir: &Path,

@@ -14,6 +14,7 @@ mod dataset;
 pub mod demo;
 pub mod image;
 pub mod lens;
+pub mod llff;
 pub mod nerfstudio;
 
 /// The pinhole camera (its home is [`crate::camera`]; re-exported for loaders).
@@ -30,11 +31,15 @@ pub enum Format {
     Colmap,
     /// nerfstudio's `transforms.json` + photos.
     Nerfstudio,
+    /// LLFF's `poses_bounds.npy` + photos.
+    Llff,
 }
 
 /// The layout of the dataset in `dir`: COLMAP when it has a sparse model
-/// ([`colmap::find_model`]) and no `transforms_*.json`, else nerfstudio when it has a
-/// `transforms.json`, else Blender (whose loader explains what is missing).
+/// ([`colmap::find_model`]) and no `transforms_*.json` (a COLMAP model wins over a
+/// `poses_bounds.npy` beside it), else nerfstudio when it has a `transforms.json`, else
+/// LLFF when it has a `poses_bounds.npy`, else Blender (whose loader explains what is
+/// missing).
 pub fn detect_format(dir: &std::path::Path) -> Format {
     let transforms = std::fs::read_dir(dir).is_ok_and(|entries| {
         entries.filter_map(|e| e.ok()).any(|e| {
@@ -47,6 +52,8 @@ pub fn detect_format(dir: &std::path::Path) -> Format {
         Format::Colmap
     } else if !transforms && dir.join("transforms.json").is_file() {
         Format::Nerfstudio
+    } else if !transforms && dir.join("poses_bounds.npy").is_file() {
+        Format::Llff
     } else {
         Format::Blender
     }
@@ -65,6 +72,14 @@ pub fn load_split(
     match detect_format(dir) {
         Format::Blender => blender::load_split(dir, split, downscale, background),
         Format::Colmap => capture::load_colmap(
+            dir,
+            split,
+            &CaptureOptions {
+                downscale,
+                ..CaptureOptions::default()
+            },
+        ),
+        Format::Llff => capture::load_llff(
             dir,
             split,
             &CaptureOptions {

@@ -210,8 +210,9 @@ pub const PRESETS: &[(&str, &str)] = &[
     ),
     (
         "forward",
-        "real forward-facing captures (LLFF): the real preset with the main region in \
-         front of the cameras",
+        "real forward-facing captures (the default for LLFF data): the real preset with 2 \
+         background shell levels instead of 5 (nothing behind the cameras is seen, and the \
+         sparse points or LLFF depth bounds already reach the far background)",
     ),
     (
         "quick",
@@ -259,8 +260,8 @@ impl TrainConfig {
         match name {
             "synthetic" => {}
             "real" | "forward" => {
-                c.bound = if name == "real" { "auto" } else { "forward" }.into();
-                c.outside_level = 5;
+                c.bound = "auto".into();
+                c.outside_level = if name == "real" { 5 } else { 2 };
                 c.background = [0.0; 3];
                 c.lambda_dist = 0.1;
             }
