@@ -23,7 +23,7 @@ pub struct TrainViews {
 }
 
 impl TrainViews {
-    /// Chunk size used by [`Trainer`](super::Trainer): [`MAX_CHUNK_BYTES`], or the device's
+    /// Chunk size used by [`Trainer`](super::trainer::Trainer): [`MAX_CHUNK_BYTES`], or the device's
     /// largest allocation where that is smaller.
     pub fn default_chunk_bytes(ctx: &Context) -> u64 {
         MAX_CHUNK_BYTES.min(ctx.info().max_memory_allocation_size)
