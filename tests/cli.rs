@@ -890,3 +890,159 @@ fn train_refuses_a_budget_below_the_starting_grid() {
     assert!(!run.join("model.safetensors").exists() && !run.join("config.json").exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A unit quaternion `[w, x, y, z]` of a rotation matrix (rows).
+fn quat(r: [[f64; 3]; 3]) -> [f64; 4] {
+    let t = r[0][0] + r[1][1] + r[2][2];
+    let q = if t > 0.0 {
+        let s = 0.5 / (t + 1.0).sqrt();
+        [
+            0.25 / s,
+            (r[2][1] - r[1][2]) * s,
+            (r[0][2] - r[2][0]) * s,
+            (r[1][0] - r[0][1]) * s,
+        ]
+    } else if r[0][0] > r[1][1] && r[0][0] > r[2][2] {
+        let s = 2.0 * (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt();
+        [
+            (r[2][1] - r[1][2]) / s,
+            0.25 * s,
+            (r[0][1] + r[1][0]) / s,
+            (r[0][2] + r[2][0]) / s,
+        ]
+    } else if r[1][1] > r[2][2] {
+        let s = 2.0 * (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt();
+        [
+            (r[0][2] - r[2][0]) / s,
+            (r[0][1] + r[1][0]) / s,
+            0.25 * s,
+            (r[1][2] + r[2][1]) / s,
+        ]
+    } else {
+        let s = 2.0 * (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt();
+        [
+            (r[1][0] - r[0][1]) / s,
+            (r[0][2] + r[2][0]) / s,
+            (r[1][2] + r[2][1]) / s,
+            0.25 * s,
+        ]
+    };
+    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    q.map(|v| v / n)
+}
+
+/// A COLMAP capture (the demo scene's views as photos in images_2/, a PINHOLE camera
+/// given for twice their size) through train → eval → resume with the data options:
+/// `--images` and `--holdout` shape the run, are saved in config.json and reused by
+/// `eval`; a resume that reads the data differently is refused; Blender data refuses
+/// capture options.
+#[test]
+fn colmap_capture_train_eval_with_data_options() {
+    use svraster::data::colmap::{self, ColmapCamera, ColmapImage, Reconstruction};
+    use svraster::data::lens::CameraModel;
+    let demo = tmp("cap-demo");
+    svraster::data::demo::write_dataset(
+        &demo,
+        &svraster::data::demo::DemoOptions {
+            width: 24,
+            height: 24,
+            train: 16,
+            val: 1,
+            test: 1,
+            seed: 5,
+        },
+    )
+    .unwrap();
+    let ds = svraster::data::load_split(&demo, "train", 1.0, [0.0; 3]).unwrap();
+    let dir = tmp("cap");
+    std::fs::create_dir_all(dir.join("images_2")).unwrap();
+    std::fs::create_dir_all(dir.join("sparse/0")).unwrap();
+    let c = &ds.frames[0].camera;
+    let mut rec = Reconstruction::default();
+    rec.cameras.insert(
+        1,
+        ColmapCamera {
+            id: 1,
+            model: CameraModel::Pinhole,
+            width: 48,
+            height: 48,
+            params: vec![2.0 * c.fx, 2.0 * c.fy, 2.0 * c.cx, 2.0 * c.cy],
+        },
+    );
+    for (k, f) in ds.frames.iter().enumerate() {
+        let name = format!("shot_{k}.png");
+        svraster::data::image::save_rgb_png(&dir.join("images_2").join(&name), 24, 24, &f.rgb)
+            .unwrap();
+        // World-to-camera: R = c2w_Rᵀ, t = −R·centre.
+        let r: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| f.camera.c2w[j][i]));
+        let o = f.camera.origin();
+        let t = std::array::from_fn(|i| -(r[i][0] * o[0] + r[i][1] * o[1] + r[i][2] * o[2]));
+        rec.images.insert(
+            k as u32 + 1,
+            ColmapImage {
+                id: k as u32 + 1,
+                qvec: quat(r),
+                tvec: t,
+                camera_id: 1,
+                name,
+                points2d: Vec::new(),
+            },
+        );
+    }
+    colmap::write_bin(&dir.join("sparse/0"), &rec).unwrap();
+    let run = tmp("cap-run");
+    let (d, r) = (dir.to_str().unwrap(), run.to_str().unwrap());
+    let (ok, _, err) = svraster(&[
+        "train",
+        d,
+        "--out",
+        r,
+        "--iters",
+        "30",
+        "--images",
+        "images_2",
+        "--holdout",
+        "4",
+        "--set",
+        "grid_level=3",
+        "--set",
+        "outside_level=1",
+        "--set",
+        "ss=1",
+        "--set",
+        "sh_degree=1",
+    ]);
+    assert!(ok, "{err}");
+    assert!(err.contains("main region (camera_median"), "{err}");
+    assert!(err.contains("on 12 views of 24×24"), "{err}");
+    let cfg: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
+    assert_eq!(cfg["preset"], "real");
+    assert_eq!(cfg["source"]["images"], "images_2");
+    assert_eq!(cfg["source"]["holdout"], 4);
+    // eval reuses the run's data options: 4 held-out views (0, 4, 8, 12).
+    let (ok, out, err) = svraster(&["eval", r, "--data", d, "--json"]);
+    assert!(ok, "{err}");
+    let rep: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert_eq!(rep["views"], 4, "{out}");
+    assert!(rep["psnr"].as_f64().unwrap() > 10.0, "{out}");
+    // Resuming with other data options is refused (the run reads its data one way).
+    let (ok, _, err) = svraster(&["train", d, "--out", r, "--resume", "--holdout", "8"]);
+    assert!(
+        !ok && err.contains("drop --format/--images/--holdout"),
+        "{err}"
+    );
+    // Capture options on Blender data.
+    let (ok, _, err) = svraster(&[
+        "train",
+        demo.to_str().unwrap(),
+        "--out",
+        tmp("cap-bad").to_str().unwrap(),
+        "--holdout",
+        "4",
+    ]);
+    assert!(!ok && err.contains("apply to captures"), "{err}");
+    for p in [demo, dir, run] {
+        let _ = std::fs::remove_dir_all(p);
+    }
+}

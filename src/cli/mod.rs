@@ -33,6 +33,57 @@ struct Cli {
     cmd: Command,
 }
 
+/// How to read a dataset (captures).
+#[derive(clap::Args, Clone, Debug, Default)]
+pub struct DataArgs {
+    /// Dataset layout (default: detected — transforms_*.json: blender; sparse/0: colmap;
+    /// transforms.json: nerfstudio; poses_bounds.npy: llff).
+    #[arg(long, value_parser = svraster::data::Format::NAMES)]
+    format: Option<String>,
+    /// Image folder of a capture, e.g. images_4 (intrinsics scaled to its images;
+    /// default: images/, else the only images_N folder).
+    #[arg(long)]
+    images: Option<String>,
+    /// Every N-th view of a capture (natural name order, from the first) is held out as
+    /// the `test` split (default 8; 0: none).
+    #[arg(long)]
+    holdout: Option<usize>,
+}
+
+impl DataArgs {
+    pub fn source(&self) -> svraster::data::SourceOptions {
+        svraster::data::SourceOptions {
+            format: self
+                .format
+                .as_deref()
+                .and_then(svraster::data::Format::from_name),
+            images: self.images.clone(),
+            holdout: self.holdout,
+        }
+    }
+}
+
+/// `explicit` where given, else the run's own (from `model`'s config.json when it is a
+/// run directory or a file in one), else the defaults.
+fn run_source(model: &std::path::Path, explicit: &DataArgs) -> svraster::data::SourceOptions {
+    let dir = if model.is_dir() {
+        Some(model)
+    } else {
+        model.parent()
+    };
+    let run: svraster::data::SourceOptions = dir
+        .and_then(|d| std::fs::read_to_string(d.join("config.json")).ok())
+        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+        .and_then(|v| serde_json::from_value(v["source"].clone()).ok())
+        .unwrap_or_default();
+    let e = explicit.source();
+    svraster::data::SourceOptions {
+        format: e.format.or(run.format),
+        images: e.images.or(run.images),
+        holdout: e.holdout.or(run.holdout),
+    }
+}
+
 #[derive(Subcommand)]
 enum Command {
     /// Print the device, driver, limits and enabled features.
@@ -96,6 +147,8 @@ enum Command {
         /// Continue the run in --out from its last checkpoint.
         #[arg(long)]
         resume: bool,
+        #[command(flatten)]
+        source: DataArgs,
     },
     /// Evaluate a model on a dataset split: mean PSNR and SSIM, frame time.
     Eval {
@@ -103,8 +156,9 @@ enum Command {
         model: PathBuf,
         #[arg(long)]
         data: PathBuf,
-        /// Split to evaluate (default: test, else val when the dataset has no test split).
-        #[arg(long, value_parser = ["train", "val", "test"])]
+        /// Split to evaluate (default: test, else val when the dataset has no test split;
+        /// captures: test = every --holdout-th view, all = every view).
+        #[arg(long, value_parser = ["train", "val", "test", "all"])]
         split: Option<String>,
         /// Downscale factor of the images (default: the run's own when MODEL is a run
         /// directory, else 1).
@@ -117,16 +171,20 @@ enum Command {
         /// trained with; 1 = none).
         #[arg(long)]
         ss: Option<f32>,
+        /// (default: the run's own when MODEL is a run directory)
+        #[command(flatten)]
+        source: DataArgs,
     },
     /// Render every frame of a dataset split with a model.
     Render {
         /// A .safetensors checkpoint, or a run directory holding model.safetensors.
         model: PathBuf,
-        /// Blender-format dataset directory (transforms_{split}.json + images).
+        /// Dataset directory (Blender, COLMAP, nerfstudio or LLFF).
         #[arg(long)]
         data: PathBuf,
-        /// Split to render (default: test, else val when the dataset has no test split).
-        #[arg(long, value_parser = ["train", "val", "test"])]
+        /// Split to render (default: test, else val when the dataset has no test split;
+        /// captures: test = every --holdout-th view, all = every view).
+        #[arg(long, value_parser = ["train", "val", "test", "all"])]
         split: Option<String>,
         /// Downscale factor of the images (area averaging; intrinsics scaled; default: the
         /// run's own when MODEL is a run directory, else 1).
@@ -148,6 +206,9 @@ enum Command {
         /// the `ss` it was trained with).
         #[arg(long)]
         ss: Option<f32>,
+        /// (default: the run's own when MODEL is a run directory)
+        #[command(flatten)]
+        source: DataArgs,
     },
     /// Benchmarks.
     Bench {
@@ -193,6 +254,7 @@ pub fn run() -> anyhow::Result<()> {
             mut set,
             max_voxels,
             resume,
+            source,
         } => {
             if let Some(n) = max_voxels {
                 set.push(format!("max_voxels={n}"));
@@ -208,6 +270,7 @@ pub fn run() -> anyhow::Result<()> {
                     seed,
                     set,
                     resume,
+                    source: source.source(),
                 },
             )?;
             if s.interrupted {
@@ -222,10 +285,18 @@ pub fn run() -> anyhow::Result<()> {
             downscale,
             json,
             ss,
+            source,
         } => {
             let split = split.unwrap_or_else(|| default_split(&data));
             let downscale = downscale.unwrap_or_else(|| run_downscale(&model));
-            train::run_eval(&ctx, &model, &data, &split, downscale, ss, json)?
+            let source = run_source(&model, &source);
+            let views = train::Views {
+                data: &data,
+                split: &split,
+                downscale,
+                source: &source,
+            };
+            train::run_eval(&ctx, &model, &views, ss, json)?
         }
         Command::Render {
             model,
@@ -237,11 +308,13 @@ pub fn run() -> anyhow::Result<()> {
             normal,
             samples,
             ss,
+            source,
         } => render::run_render(
             &ctx,
             render::RenderArgs {
                 split: split.unwrap_or_else(|| default_split(&data)),
                 downscale: downscale.unwrap_or_else(|| run_downscale(&model)),
+                source: run_source(&model, &source),
                 model,
                 data,
                 out,

@@ -174,6 +174,8 @@ pub struct RenderArgs {
     pub data: PathBuf,
     pub split: String,
     pub downscale: f64,
+    /// How to read the dataset.
+    pub source: data::SourceOptions,
     pub out: PathBuf,
     pub depth: bool,
     pub normal: bool,
@@ -186,7 +188,7 @@ pub struct RenderArgs {
 /// Renders every frame of a split; returns (mean PSNR against the photos, ms per frame).
 pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)> {
     let scene = load_model(&a.model)?;
-    let mut ds = data::load_split(&a.data, &a.split, a.downscale, scene.background)?;
+    let mut ds = data::load(&a.data, &a.split, a.downscale, scene.background, &a.source)?;
     ds.to_model(&scene.world);
     if ds.frames.is_empty() {
         bail!("split `{}` of {} has no frames", a.split, a.data.display());

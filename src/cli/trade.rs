@@ -110,6 +110,7 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
                 seed: Some(a.seed),
                 set,
                 resume: false,
+                source: Default::default(),
             },
         )?;
         if summary.interrupted {
@@ -119,9 +120,12 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
         let rep = evaluate(
             ctx,
             &scene,
-            &a.data,
-            &a.split,
-            a.downscale,
+            &super::train::Views {
+                data: &a.data,
+                split: &a.split,
+                downscale: a.downscale,
+                source: &Default::default(),
+            },
             &RenderOptions::for_scene(&scene),
             false,
         )?;

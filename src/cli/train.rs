@@ -31,13 +31,19 @@ pub struct TrainArgs {
     pub seed: Option<u64>,
     pub set: Vec<String>,
     pub resume: bool,
+    /// How to read DATA (new run: as given; resume: the run's own).
+    pub source: data::SourceOptions,
 }
 
 /// The preset of a new run: `--preset`, else the one the data's format calls for
 /// (Blender → synthetic, COLMAP → real).
 pub fn default_preset(a: &TrainArgs) -> String {
     a.preset.clone().unwrap_or_else(|| {
-        match data::detect_format(&a.data) {
+        match a
+            .source
+            .format
+            .unwrap_or_else(|| data::detect_format(&a.data))
+        {
             data::Format::Blender => "synthetic",
             data::Format::Colmap | data::Format::Nerfstudio => "real",
             data::Format::Llff => "forward",
@@ -79,7 +85,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     let run = &a.out;
     let cfg_path = run.join("config.json");
     let mut _lock = None;
-    let (mut cfg, init, opt_state, start_iter, preset, downscale) = if a.resume {
+    let (mut cfg, init, opt_state, start_iter, preset, downscale, source) = if a.resume {
         if a.iters.is_some() || a.seed.is_some() || !a.set.is_empty() {
             bail!("--resume continues a run with its own config.json: drop --iters/--seed/--set (or start a new --out)");
         }
@@ -118,6 +124,16 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
                 );
             }
         }
+        let run_source: data::SourceOptions =
+            serde_json::from_value(v["source"].clone()).unwrap_or_default();
+        if a.source != data::SourceOptions::default() && a.source != run_source {
+            bail!(
+                "--resume: the run in {} reads its data with {:?}, not {:?}; drop --format/--images/--holdout (or start a new --out)",
+                run.display(),
+                run_source,
+                a.source
+            );
+        }
         let run_preset = v["preset"].as_str().unwrap_or("synthetic").to_string();
         if let Some(p) = &a.preset {
             if *p != run_preset {
@@ -146,6 +162,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             iter,
             run_preset,
             run_downscale,
+            run_source,
         )
     } else {
         if run.join("model.safetensors").exists() || cfg_path.exists() {
@@ -165,10 +182,11 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             0,
             default_preset(a),
             downscale,
+            a.source.clone(),
         )
     };
     eprintln!("loading the train split of {} …", a.data.display());
-    let train = data::load_split(&a.data, "train", downscale, cfg.background)?;
+    let train = data::load(&a.data, "train", downscale, cfg.background, &source)?;
     if _lock.is_none() {
         // A new run: everything is validated; now the directory, locked before anything
         // is written into it (and checked again under the lock).
@@ -222,6 +240,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             "preset": preset,
             "data": canonical(&a.data),
             "downscale": downscale,
+            "source": source,
             "image_size": [train.width, train.height],
             "train_views": train.frames.len(),
             "voxels": trainer.voxels(),
@@ -378,18 +397,30 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
     })
 }
 
-/// Evaluates `scene` on a split of the dataset at `data` ([`svraster::eval::evaluate`]),
-/// with a progress line on stderr unless `quiet`.
+/// Which views of which dataset, read how.
+pub struct Views<'a> {
+    pub data: &'a Path,
+    pub split: &'a str,
+    pub downscale: f64,
+    pub source: &'a data::SourceOptions,
+}
+
+/// Evaluates `scene` on a split of a dataset ([`svraster::eval::evaluate`]), with a
+/// progress line on stderr unless `quiet`.
 pub fn evaluate(
     ctx: &Context,
     scene: &Scene,
-    data: &Path,
-    split: &str,
-    downscale: f64,
+    views: &Views,
     opts: &RenderOptions,
     quiet: bool,
 ) -> anyhow::Result<EvalReport> {
-    let mut ds = data::load_split(data, split, downscale, scene.background)?;
+    let Views {
+        data,
+        split,
+        downscale,
+        source,
+    } = *views;
+    let mut ds = data::load(data, split, downscale, scene.background, source)?;
     ds.to_model(&scene.world);
     if ds.frames.is_empty() {
         bail!("split `{split}` of {} has no frames", data.display());
@@ -410,18 +441,17 @@ pub fn evaluate(
 pub fn run_eval(
     ctx: &Context,
     model: &Path,
-    data: &Path,
-    split: &str,
-    downscale: f64,
+    views: &Views,
     ss: Option<f32>,
     json: bool,
 ) -> anyhow::Result<()> {
+    let split = views.split;
     let scene = load_model(model)?;
     let opts = RenderOptions {
         supersample: ss.unwrap_or(scene.supersample),
         ..RenderOptions::for_scene(&scene)
     };
-    let rep = evaluate(ctx, &scene, data, split, downscale, &opts, json)?;
+    let rep = evaluate(ctx, &scene, views, &opts, json)?;
     if json {
         println!("{}", serde_json::to_string(&rep)?);
     } else {
@@ -464,6 +494,7 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
         seed: Some(a.seed),
         set: vec![format!("grid_level={}", a.level)],
         resume: false,
+        source: Default::default(),
     };
     if !a.voxelize {
         resolve_config(&train_args)?;
@@ -539,9 +570,12 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
     let rep = evaluate(
         ctx,
         &scene,
-        &data_dir,
-        "test",
-        1.0,
+        &Views {
+            data: &data_dir,
+            split: "test",
+            downscale: 1.0,
+            source: &data::SourceOptions::default(),
+        },
         &RenderOptions::for_scene(&scene),
         false,
     )?;
@@ -553,6 +587,7 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
             data: data_dir,
             split: "test".into(),
             downscale: 1.0,
+            source: data::SourceOptions::default(),
             out: renders.clone(),
             depth: true,
             normal: true,

@@ -23,7 +23,8 @@ pub use capture::CaptureOptions;
 pub use dataset::{area_resample, downscaled_size, Dataset, Frame};
 
 /// Dataset layouts [`load_split`] reads.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Format {
     /// Blender / NeRF-synthetic: `transforms_{split}.json` + images.
     Blender,
@@ -33,6 +34,31 @@ pub enum Format {
     Nerfstudio,
     /// LLFF's `poses_bounds.npy` + photos.
     Llff,
+}
+
+impl Format {
+    /// Every format, as `--format` names them.
+    pub const NAMES: [&'static str; 4] = ["blender", "colmap", "nerfstudio", "llff"];
+
+    pub fn from_name(name: &str) -> Option<Format> {
+        match name {
+            "blender" => Some(Format::Blender),
+            "colmap" => Some(Format::Colmap),
+            "nerfstudio" => Some(Format::Nerfstudio),
+            "llff" => Some(Format::Llff),
+            _ => None,
+        }
+    }
+}
+
+/// How to read a dataset beyond its split and scale: the layout (None: detected), the
+/// image folder of a capture (None: `images/`, else the lone `images_N`), and the
+/// hold-out interval of captures (None: 8).
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SourceOptions {
+    pub format: Option<Format>,
+    pub images: Option<String>,
+    pub holdout: Option<usize>,
 }
 
 /// The layout of the dataset in `dir`: COLMAP when it has a sparse model
@@ -61,39 +87,42 @@ pub fn detect_format(dir: &std::path::Path) -> Format {
 
 /// Loads split `split` of the dataset in `dir`, whatever its layout ([`detect_format`]):
 /// images downscaled by `downscale`; Blender RGBA composited over `background`.
-/// COLMAP captures use [`CaptureOptions::default`] (the `images/` folder or a lone
-/// `images_N`, every 8th view held out as `test`).
+/// Captures use the `images/` folder (or a lone `images_N`) and hold out every 8th view
+/// as `test` ([`load`] chooses otherwise).
 pub fn load_split(
     dir: &std::path::Path,
     split: &str,
     downscale: f64,
     background: [f32; 3],
 ) -> crate::Result<Dataset> {
-    match detect_format(dir) {
+    load(dir, split, downscale, background, &SourceOptions::default())
+}
+
+/// [`load_split`] with the layout, image folder and hold-out of `source`.
+pub fn load(
+    dir: &std::path::Path,
+    split: &str,
+    downscale: f64,
+    background: [f32; 3],
+    source: &SourceOptions,
+) -> crate::Result<Dataset> {
+    let format = source.format.unwrap_or_else(|| detect_format(dir));
+    let opts = CaptureOptions {
+        images: source.images.clone(),
+        downscale,
+        holdout: source.holdout.unwrap_or(8),
+    };
+    if format == Format::Blender && (source.images.is_some() || source.holdout.is_some()) {
+        return Err(crate::Error::Invalid(format!(
+            "{}: --images and --holdout apply to captures (COLMAP, nerfstudio, LLFF), not to \
+             a Blender dataset, whose splits are its transforms_*.json files",
+            dir.display()
+        )));
+    }
+    match format {
         Format::Blender => blender::load_split(dir, split, downscale, background),
-        Format::Colmap => capture::load_colmap(
-            dir,
-            split,
-            &CaptureOptions {
-                downscale,
-                ..CaptureOptions::default()
-            },
-        ),
-        Format::Llff => capture::load_llff(
-            dir,
-            split,
-            &CaptureOptions {
-                downscale,
-                ..CaptureOptions::default()
-            },
-        ),
-        Format::Nerfstudio => capture::load_nerfstudio(
-            dir,
-            split,
-            &CaptureOptions {
-                downscale,
-                ..CaptureOptions::default()
-            },
-        ),
+        Format::Colmap => capture::load_colmap(dir, split, &opts),
+        Format::Llff => capture::load_llff(dir, split, &opts),
+        Format::Nerfstudio => capture::load_nerfstudio(dir, split, &opts),
     }
 }
