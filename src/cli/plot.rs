@@ -228,7 +228,15 @@ where
     let ok = |p: &Point| {
         p.x.is_finite() && p.y.is_finite() && (!c.x_log || p.x > 0.0) && (!c.y_log || p.y > 0.0)
     };
-    let (x0, x1) = range(pts().filter(|p| ok(p)).map(|p| p.x), c.x_log).unwrap_or((0.0, 1.0));
+    let (x0, mut x1) = range(pts().filter(|p| ok(p)).map(|p| p.x), c.x_log).unwrap_or((0.0, 1.0));
+    if pts().any(|p| p.label.is_some()) {
+        // Room for the label of the rightmost point (drawn to its right).
+        x1 = if c.x_log {
+            x1 * (x1 / x0).powf(0.12)
+        } else {
+            x1 + 0.12 * (x1 - x0)
+        };
+    }
     let (y0, y1) = range(pts().filter(|p| ok(p)).map(|p| p.y), c.y_log).unwrap_or((0.0, 1.0));
     let xd = (!c.x_log).then(|| axis_decimals(x0, x1));
     let yd = (!c.y_log).then(|| axis_decimals(y0, y1));
