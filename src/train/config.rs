@@ -206,7 +206,8 @@ pub const PRESETS: &[(&str, &str)] = &[
         "real",
         "real captures, unbounded (Mip-NeRF 360-like; the default for COLMAP data): main \
          region from the cameras, 5 background shell levels holding twice the main \
-         region's voxels, black background, distortion loss 0.1 from half the run",
+         region's voxels, black background, distortion loss 0.1 from half the run, no \
+         transmittance-concentration loss",
     ),
     (
         "forward",
@@ -264,6 +265,10 @@ impl TrainConfig {
                 c.outside_level = if name == "real" { 5 } else { 2 };
                 c.background = [0.0; 3];
                 c.lambda_dist = 0.1;
+                // The reference's Mip-NeRF 360 configuration: no transmittance
+                // concentration (an object-on-background prior; the shells fill the
+                // background here).
+                c.lambda_t = 0.0;
             }
             "quick" => {
                 c.grid_level = 6;
