@@ -809,3 +809,71 @@ fn real_llff_flower_poses_bounds_match_colmap() {
     println!("flower from LLFF bounds: {r:?}");
     assert_eq!(r.mode, "points");
 }
+
+/// PLY point clouds: the garden's ASCII `sparse_pc.ply` is its COLMAP points3D in
+/// nerfstudio's frame; binary files of either endianness and property type read the same.
+#[test]
+fn ply_points() {
+    let dir = tmp("ply");
+    let pts = [[1.5f64, -2.25, 3.0], [0.0, 1e-3, -7.5]];
+    let head = |fmt: &str, t: &str| {
+        format!(
+            "ply\nformat {fmt} 1.0\ncomment x\nelement vertex 2\nproperty uchar red\n\
+             property {t} x\nproperty {t} y\nproperty {t} z\nelement face 0\n\
+             property list uchar int vertex_indices\nend_header\n"
+        )
+    };
+    for (fmt, t) in [
+        ("binary_little_endian", "float"),
+        ("binary_big_endian", "double"),
+        ("ascii", "float"),
+    ] {
+        let mut b = head(fmt, t).into_bytes();
+        for p in &pts {
+            if fmt == "ascii" {
+                b.extend(format!("7 {} {} {}\n", p[0], p[1], p[2]).bytes());
+                continue;
+            }
+            b.push(7);
+            for v in p {
+                match (fmt, t) {
+                    ("binary_little_endian", _) => b.extend((*v as f32).to_le_bytes()),
+                    _ => b.extend(v.to_be_bytes()),
+                }
+            }
+        }
+        let path = dir.join(format!("{fmt}.ply"));
+        std::fs::write(&path, &b).unwrap();
+        let got = svraster::data::ply::read_points(&path).unwrap();
+        for (g, w) in got.iter().zip(&pts) {
+            for a in 0..3 {
+                assert!((g[a] - w[a]).abs() < 1e-6, "{fmt}: {got:?}");
+            }
+        }
+        // Cut inside the last vertex (for ASCII: before its z).
+        let cut = if fmt == "ascii" { 9 } else { 3 };
+        std::fs::write(&path, &b[..b.len() - cut]).unwrap();
+        assert!(
+            svraster::data::ply::read_points(&path).is_err(),
+            "{fmt} truncated"
+        );
+    }
+    let Some(garden) = shared("mip360_garden_512") else {
+        return;
+    };
+    let ply = svraster::data::nerfstudio::points(&garden).unwrap();
+    let rec = colmap::read_model(&garden.join("sparse/0")).unwrap();
+    assert_eq!(ply.len(), rec.points.len());
+    let t: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(garden.join("transforms.json")).unwrap())
+            .unwrap();
+    let a: Vec<Vec<f64>> = serde_json::from_value(t["applied_transform"].clone()).unwrap();
+    let mut worst = 0.0f64;
+    for (p, c) in ply.iter().zip(&rec.points) {
+        for r in 0..3 {
+            let want = (0..3).map(|j| a[r][j] * c.xyz[j]).sum::<f64>() + a[r][3];
+            worst = worst.max((p[r] - want).abs());
+        }
+    }
+    assert!(worst < 1e-5, "ply vs COLMAP points: {worst:e}");
+}

@@ -159,7 +159,9 @@ pub fn load_nerfstudio(dir: &Path, split: &str, opts: &CaptureOptions) -> Result
         Some(_) => image_folder(dir, opts.images.as_deref())?,
         None => folder,
     };
-    load_shots_from(dir, &folder, shots, split, opts)
+    let mut ds = load_shots_from(dir, &folder, shots, split, opts)?;
+    ds.points = super::nerfstudio::points(dir)?;
+    Ok(ds)
 }
 
 /// Loads split `split` of an LLFF capture in `dir` (`poses_bounds.npy`). Its depth

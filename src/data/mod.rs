@@ -16,6 +16,7 @@ pub mod image;
 pub mod lens;
 pub mod llff;
 pub mod nerfstudio;
+pub mod ply;
 
 /// The pinhole camera (its home is [`crate::camera`]; re-exported for loaders).
 pub use crate::camera::Camera;

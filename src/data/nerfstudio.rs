@@ -155,3 +155,19 @@ fn parse_matrix(v: &Value) -> Option<[[f64; 4]; 3]> {
     }
     Some(m)
 }
+
+/// The capture's sparse points (`ply_file_path` of `dir/transforms.json`, in the frames'
+/// world), or none when it names no file.
+pub fn points(dir: &Path) -> Result<Vec<[f64; 3]>> {
+    let path = dir.join("transforms.json");
+    let text = std::fs::read_to_string(&path).map_err(|error| Error::Io {
+        path: path.display().to_string(),
+        error,
+    })?;
+    let root: Value = serde_json::from_str(&text)
+        .map_err(|e| Error::Invalid(format!("{}: not valid JSON ({e})", path.display())))?;
+    match root["ply_file_path"].as_str() {
+        Some(p) => super::ply::read_points(&dir.join(p)),
+        None => Ok(Vec::new()),
+    }
+}
