@@ -877,3 +877,85 @@ fn ply_points() {
     }
     assert!(worst < 1e-5, "ply vs COLMAP points: {worst:e}");
 }
+
+/// Writes a float64 C-order `.npy` file (format 1.0) of `rows × cols`.
+fn write_npy(path: &Path, rows: usize, cols: usize, v: &[f64]) {
+    let mut header =
+        format!("{{'descr': '<f8', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
+    while (10 + header.len() + 1) % 64 != 0 {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut b = b"\x93NUMPY\x01\x00".to_vec();
+    b.extend((header.len() as u16).to_le_bytes());
+    b.extend(header.as_bytes());
+    v.iter().for_each(|x| b.extend(x.to_le_bytes()));
+    std::fs::write(path, b).unwrap();
+}
+
+/// An LLFF fixture written here: rows in [down, right, back | t | hwf] + near/far come
+/// back as OpenCV cameras (x = right, y = down, z = −back) with the focal scaled to the
+/// images_4 files; a non-rigid row and a pose/image count mismatch are named.
+#[test]
+fn llff_fixture() {
+    let dir = tmp("llff");
+    std::fs::create_dir_all(dir.join("images_4")).unwrap();
+    // Camera k at (k, 0, 0) looking down world −z with world y up: down = (0,−1,0),
+    // right = (1,0,0), back = (0,0,1); full resolution 40×32 (h, w = 32, 40), f = 50.
+    let row = |k: usize| -> Vec<f64> {
+        let r = [
+            [0.0, 1.0, 0.0, k as f64, 32.0],
+            [-1.0, 0.0, 0.0, 0.0, 40.0],
+            [0.0, 0.0, 1.0, 0.0, 50.0],
+        ];
+        let mut v: Vec<f64> = r.iter().flatten().copied().collect();
+        v.extend([2.0, 9.0]);
+        v
+    };
+    let rows: Vec<f64> = (0..3).flat_map(row).collect();
+    write_npy(&dir.join("poses_bounds.npy"), 3, 17, &rows);
+    for k in 0..3 {
+        save_rgb_png(
+            &dir.join(format!("images_4/img{k}.png")),
+            10,
+            8,
+            &vec![[0.2; 3]; 80],
+        )
+        .unwrap();
+    }
+    assert_eq!(
+        svraster::data::detect_format(&dir),
+        svraster::data::Format::Llff
+    );
+    let ds = capture::load_llff(&dir, "all", &CaptureOptions::default()).unwrap();
+    assert_eq!(ds.frames.len(), 3);
+    let c = &ds.frames[2].camera;
+    assert_eq!(
+        (c.width, c.height, c.fx, c.fy, c.cx, c.cy),
+        (10, 8, 12.5, 12.5, 5.0, 4.0)
+    );
+    assert_eq!(c.origin(), [2.0, 0.0, 0.0]);
+    assert_eq!(c.rotate([1.0, 0.0, 0.0]), [1.0, 0.0, 0.0], "x = right");
+    assert_eq!(c.rotate([0.0, 1.0, 0.0]), [0.0, -1.0, 0.0], "y = down");
+    assert_eq!(
+        c.rotate([0.0, 0.0, 1.0]),
+        [0.0, 0.0, -1.0],
+        "z = forward = −back"
+    );
+    // 3 cameras × 5 rays × {near, far} bounding points; the far centre point of camera 0.
+    assert_eq!(ds.points.len(), 30);
+    assert_eq!(ds.points[1], [0.0, 0.0, -9.0]);
+    // A scaled rotation, and a count mismatch.
+    let mut bad = rows.clone();
+    bad[17 + 1] = 2.0;
+    write_npy(&dir.join("poses_bounds.npy"), 3, 17, &bad);
+    let e = capture::load_llff(&dir, "all", &CaptureOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("row 1") && e.contains("rigid"), "{e}");
+    write_npy(&dir.join("poses_bounds.npy"), 2, 17, &rows[..34]);
+    let e = capture::load_llff(&dir, "all", &CaptureOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("2 poses") && e.contains("3 images"), "{e}");
+}
