@@ -8,9 +8,8 @@ pub mod stats;
 pub mod topology;
 
 use crate::camera::Camera;
-use crate::gpu::Context;
 use crate::raster::Renderer;
-use crate::scene::{Scene, SceneGpu};
+use crate::scene::Scene;
 use crate::{Error, Result};
 use stats::StatsPass;
 use topology::Topology;
@@ -47,21 +46,14 @@ pub struct AdaptReport {
 /// Removes the voxels no training camera sees (paper §3.2.1, bounded scenes): a voxel
 /// is seen when a view's preprocess gives it at least one tile entry.
 pub fn visible_only(
-    ctx: &Context,
     scene: Scene,
     cams: &[Camera],
     renderer: &mut Renderer,
     stats: &mut StatsPass,
     topology: &mut Topology,
 ) -> Result<Scene> {
-    let gpu = SceneGpu::upload(ctx, &scene)?;
-    stats.begin(gpu.voxels)?;
-    for cam in cams {
-        stats.add_view_intervals(renderer, &gpu, cam)?;
-    }
-    drop(gpu);
     let keep: Vec<bool> = stats
-        .read()?
+        .intervals(renderer, &scene, cams)?
         .min_interval
         .iter()
         .map(|v| v.is_finite())

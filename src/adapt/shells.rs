@@ -12,7 +12,7 @@
 
 use crate::camera::Camera;
 use crate::raster::Renderer;
-use crate::scene::{octpath_from_ijk, Scene, SceneGpu, MAX_LEVEL};
+use crate::scene::{octpath_from_ijk, Scene, MAX_LEVEL};
 use crate::{Error, Result};
 
 use super::stats::StatsPass;
@@ -67,22 +67,6 @@ pub fn scene_of(center: [f32; 3], extent: f32, cells: &[Cell], geo_init: f32) ->
     Scene::from_voxels(center, extent, 0, paths, levels, geo_init)
 }
 
-/// Per-voxel maximum sampling rate of `scene` over `cams` (0: seen by no camera).
-fn sampling_rates(
-    scene: &Scene,
-    cams: &[Camera],
-    renderer: &mut Renderer,
-    stats: &mut StatsPass,
-) -> Result<Vec<f32>> {
-    let gpu = SceneGpu::upload(stats.context(), scene)?;
-    stats.begin(gpu.voxels)?;
-    for cam in cams {
-        stats.add_view_intervals(renderer, &gpu, cam)?;
-    }
-    drop(gpu);
-    Ok(stats.read()?.sampling_rate(scene))
-}
-
 /// What [`shell_layout`] did.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ShellReport {
@@ -110,7 +94,9 @@ pub fn shell_layout(
     let mut report = ShellReport::default();
     loop {
         let scene = scene_of(center, extent, &cells, -10.0)?;
-        let rate = sampling_rates(&scene, cams, renderer, stats)?;
+        let rate = stats
+            .intervals(renderer, &scene, cams)?
+            .sampling_rate(&scene);
         // The scene is in path order: pair each rate with its cell.
         let mut seen: Vec<(Cell, f32)> = scene
             .octpath

@@ -221,6 +221,23 @@ impl StatsPass {
         })
     }
 
+    /// The min sampling interval of every voxel of `scene` over `cams` (the max weights
+    /// stay zero): uploads the scene, folds each view's preprocess, reads back.
+    pub fn intervals(
+        &mut self,
+        renderer: &mut Renderer,
+        scene: &Scene,
+        cams: &[Camera],
+    ) -> Result<VoxelStats> {
+        let gpu = SceneGpu::upload(&self.ctx, scene)?;
+        self.begin(gpu.voxels)?;
+        for cam in cams {
+            self.add_view_intervals(renderer, &gpu, cam)?;
+        }
+        drop(gpu);
+        self.read()
+    }
+
     pub fn record_interval_fold(&self, cmd: vk::CommandBuffer, params: u64) -> Result<()> {
         let (_, mi) = self.buffers()?;
         let push = IntervalPush {

@@ -66,14 +66,7 @@ impl DataArgs {
 /// `explicit` where given, else the run's own (from `model`'s config.json when it is a
 /// run directory or a file in one), else the defaults.
 fn run_source(model: &std::path::Path, explicit: &DataArgs) -> svraster::data::SourceOptions {
-    let dir = if model.is_dir() {
-        Some(model)
-    } else {
-        model.parent()
-    };
-    let run: svraster::data::SourceOptions = dir
-        .and_then(|d| std::fs::read_to_string(d.join("config.json")).ok())
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+    let run: svraster::data::SourceOptions = run_config(model)
         .and_then(|v| serde_json::from_value(v["source"].clone()).ok())
         .unwrap_or_default();
     let e = explicit.source();
@@ -348,17 +341,21 @@ fn default_split(data: &std::path::Path) -> String {
     split.to_string()
 }
 
+/// The run's config.json when `model` is a run directory or a file in one.
+fn run_config(model: &std::path::Path) -> Option<serde_json::Value> {
+    let dir = if model.is_dir() {
+        model
+    } else {
+        model.parent()?
+    };
+    let text = std::fs::read_to_string(dir.join("config.json")).ok()?;
+    serde_json::from_str(&text).ok()
+}
+
 /// The downscale a model was trained at when `model` is a run directory (or a file in
 /// one) with config.json; else 1.
 fn run_downscale(model: &std::path::Path) -> f64 {
-    let dir = if model.is_dir() {
-        Some(model)
-    } else {
-        model.parent()
-    };
-    let d = dir
-        .and_then(|d| std::fs::read_to_string(d.join("config.json")).ok())
-        .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+    let d = run_config(model)
         .and_then(|v| v["downscale"].as_f64())
         .filter(|d| d.is_finite() && *d >= 1.0);
     if let Some(d) = d {

@@ -366,16 +366,16 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
             "metadata `sh_degree` is {sh_degree}, outside 0..={MAX_SH_DEGREE}"
         ));
     }
-    let center = parse_vec3("scene_center", meta_str("scene_center")?)?;
-    let extent = parse_f32("scene_extent", meta_str("scene_extent")?)?;
+    let center = parse_vec3::<f32>("scene_center", meta_str("scene_center")?)?;
+    let extent = parse_num::<f32>("scene_extent", meta_str("scene_extent")?)?;
     if extent <= 0.0 {
         return Err(format!("metadata `scene_extent` is {extent}, must be > 0"));
     }
-    let background = parse_vec3("background", meta_str("background")?)?;
+    let background = parse_vec3::<f32>("background", meta_str("background")?)?;
     // Optional (files written before it existed render without supersampling).
     let supersample = match meta.get("supersample") {
         None => 1.0,
-        Some(_) => parse_f32("supersample", meta_str("supersample")?)?,
+        Some(_) => parse_num::<f32>("supersample", meta_str("supersample")?)?,
     };
     if !(1.0..=8.0).contains(&supersample) {
         return Err(format!(
@@ -385,11 +385,11 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
     let world = super::WorldFrame {
         center: match meta.get("world_center") {
             None => [0.0; 3],
-            Some(_) => parse_vec3_f64("world_center", meta_str("world_center")?)?,
+            Some(_) => parse_vec3::<f64>("world_center", meta_str("world_center")?)?,
         },
         scale: match meta.get("world_scale") {
             None => 1.0,
-            Some(_) => parse_f64("world_scale", meta_str("world_scale")?)?,
+            Some(_) => parse_num::<f64>("world_scale", meta_str("world_scale")?)?,
         },
     };
     if world.scale <= 0.0 {
@@ -602,39 +602,20 @@ fn tensor_info(name: &str, dtype: &str, entry: &Entries<Value>, data_len: u64) -
     Ok(TensorInfo { shape, begin, end })
 }
 
-fn parse_f32(key: &str, s: &str) -> Msg<f32> {
-    let v: f32 = s
+/// A finite number (f32 or f64, parsed at its own precision).
+fn parse_num<T: std::str::FromStr + Copy + Into<f64>>(key: &str, s: &str) -> Msg<T> {
+    let v: T = s
         .trim()
         .parse()
         .map_err(|_| format!("metadata `{key}`: `{s}` is not a number"))?;
-    if !v.is_finite() {
+    if !v.into().is_finite() {
         return Err(format!("metadata `{key}`: `{s}` is not finite"));
     }
     Ok(v)
 }
 
-fn parse_f64(key: &str, s: &str) -> Msg<f64> {
-    let v: f64 = s
-        .trim()
-        .parse()
-        .map_err(|_| format!("metadata `{key}`: `{s}` is not a number"))?;
-    if !v.is_finite() {
-        return Err(format!("metadata `{key}`: `{s}` is not finite"));
-    }
-    Ok(v)
-}
-
-fn parse_vec3_f64(key: &str, s: &str) -> Msg<[f64; 3]> {
-    let v = parse_list(key, s)?;
-    Ok([
-        parse_f64(key, v[0])?,
-        parse_f64(key, v[1])?,
-        parse_f64(key, v[2])?,
-    ])
-}
-
-/// The three comma-separated items of a JSON array text `[x,y,z]`.
-fn parse_list<'a>(key: &str, s: &'a str) -> Msg<Vec<&'a str>> {
+/// A JSON array text `[x,y,z]` of finite numbers.
+fn parse_vec3<T: std::str::FromStr + Copy + Into<f64>>(key: &str, s: &str) -> Msg<[T; 3]> {
     let inner = s
         .trim()
         .strip_prefix('[')
@@ -646,14 +627,9 @@ fn parse_list<'a>(key: &str, s: &'a str) -> Msg<Vec<&'a str>> {
             "metadata `{key}` is `{s}`, expected exactly 3 numbers [x,y,z]"
         ));
     }
-    Ok(parts)
-}
-
-fn parse_vec3(key: &str, s: &str) -> Msg<[f32; 3]> {
-    let parts = parse_list(key, s)?;
     Ok([
-        parse_f32(key, parts[0])?,
-        parse_f32(key, parts[1])?,
-        parse_f32(key, parts[2])?,
+        parse_num(key, parts[0])?,
+        parse_num(key, parts[1])?,
+        parse_num(key, parts[2])?,
     ])
 }

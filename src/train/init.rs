@@ -72,7 +72,7 @@ fn initial_layout(
 ) -> Result<Scene> {
     check_grid_fits(ctx, cfg)?;
     let dense = uniform_grid(cfg)?;
-    let inside = visible_only(ctx, dense, cams, renderer, stats, topology)?;
+    let inside = visible_only(dense, cams, renderer, stats, topology)?;
     if cfg.outside_level == 0 {
         return Ok(inside);
     }

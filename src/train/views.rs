@@ -19,7 +19,6 @@ pub struct TrainViews {
     chunks: Vec<Buffer>,
     /// Per view: chunk index and byte offset in it.
     slots: Vec<(usize, u64)>,
-    bytes: u64,
 }
 
 impl TrainViews {
@@ -50,7 +49,6 @@ impl TrainViews {
         let mut views = TrainViews {
             chunks: Vec::new(),
             slots: Vec::with_capacity(data.frames.len()),
-            bytes: 0,
         };
         for (c, frames) in data.frames.chunks(per_chunk).enumerate() {
             let mut planar = vec![0f32; frames.len() * 3 * np];
@@ -72,7 +70,6 @@ impl TrainViews {
                 )),
                 e => e,
             })?;
-            views.bytes += buf.size();
             views.chunks.push(buf);
         }
         Ok(views)
@@ -95,7 +92,7 @@ impl TrainViews {
 
     /// Device bytes held.
     pub fn bytes(&self) -> u64 {
-        self.bytes
+        self.chunks.iter().map(Buffer::size).sum()
     }
 
     /// The buffer holding `view` and the view's byte offset in it.

@@ -200,6 +200,14 @@ struct Cursor<'a> {
 }
 
 impl<'a> Cursor<'a> {
+    fn new(bytes: &'a [u8], path: &'a Path) -> Cursor<'a> {
+        Cursor {
+            bytes,
+            pos: 0,
+            path,
+        }
+    }
+
     fn take(&mut self, n: usize, what: &dyn Fn() -> String) -> Result<&'a [u8]> {
         if self.bytes.len() - self.pos < n {
             return Err(invalid(
@@ -268,11 +276,7 @@ impl<'a> Cursor<'a> {
 }
 
 fn parse_cameras_bin(bytes: &[u8], path: &Path) -> Result<BTreeMap<u32, ColmapCamera>> {
-    let mut c = Cursor {
-        bytes,
-        pos: 0,
-        path,
-    };
+    let mut c = Cursor::new(bytes, path);
     let n = c.count(24, &|| "the camera count".into())?;
     let mut out = BTreeMap::new();
     for k in 0..n {
@@ -311,11 +315,7 @@ fn parse_cameras_bin(bytes: &[u8], path: &Path) -> Result<BTreeMap<u32, ColmapCa
 }
 
 fn parse_images_bin(bytes: &[u8], path: &Path) -> Result<BTreeMap<u32, ColmapImage>> {
-    let mut c = Cursor {
-        bytes,
-        pos: 0,
-        path,
-    };
+    let mut c = Cursor::new(bytes, path);
     let n = c.count(69, &|| "the image count".into())?;
     let mut out = BTreeMap::new();
     for k in 0..n {
@@ -359,11 +359,7 @@ fn parse_images_bin(bytes: &[u8], path: &Path) -> Result<BTreeMap<u32, ColmapIma
 }
 
 fn parse_points_bin(bytes: &[u8], path: &Path) -> Result<Vec<ColmapPoint>> {
-    let mut c = Cursor {
-        bytes,
-        pos: 0,
-        path,
-    };
+    let mut c = Cursor::new(bytes, path);
     let n = c.count(43, &|| "the point count".into())?;
     let mut out = Vec::with_capacity(n);
     for k in 0..n {
