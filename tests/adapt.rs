@@ -8,12 +8,17 @@ use common::{context, finish, mean_psnr};
 use svraster::data::{self, demo};
 use svraster::train::config::{Layout, TrainConfig};
 use svraster::train::trainer::{uniform_grid, AdaptReport, Trainer};
+use tempfile::TempDir;
 
-fn demo_data(name: &str, size: u32) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("svraster-adapt-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+/// The demo dataset in a fresh directory named `svraster-adapt-<name>-…`, removed when
+/// dropped.
+fn demo_data(name: &str, size: u32) -> TempDir {
+    let dir = tempfile::Builder::new()
+        .prefix(&format!("svraster-adapt-{name}-"))
+        .tempdir()
+        .unwrap();
     demo::write_dataset(
-        &dir,
+        dir.path(),
         &demo::DemoOptions {
             width: size,
             height: size,
@@ -117,7 +122,7 @@ fn reports_of(t: &mut Trainer) -> Vec<AdaptReport> {
 fn adaptive_layout_models_only_what_the_scene_requires() {
     let ctx = context();
     let dir = demo_data("small", 48);
-    let train = data::load_split(&dir, "train", 1.0, [1.0; 3]).unwrap();
+    let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
     let mut cfg = TrainConfig::preset("quick").unwrap();
     cfg.iters = 240;
     cfg.grid_level = 4;
@@ -160,13 +165,12 @@ fn adaptive_layout_models_only_what_the_scene_requires() {
         "{} voxels vs {uniform}",
         scene.num_voxels()
     );
-    let val = data::load_split(&dir, "val", 1.0, train.background).unwrap();
+    let val = data::load_split(dir.path(), "val", 1.0, train.background).unwrap();
     let psnr = mean_psnr(&ctx, &scene, &val);
     eprintln!("val PSNR {psnr:.2} dB");
     // An emptied model scores ~9 dB here; the fixed level-4 grid ~20 dB.
     assert!(psnr > 18.0, "val PSNR {psnr}");
     finish(&ctx);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Subdivision never takes the model past the voxel budget, and says so when it stops.
@@ -174,7 +178,7 @@ fn adaptive_layout_models_only_what_the_scene_requires() {
 fn voxel_budget_stops_subdivision() {
     let ctx = context();
     let dir = demo_data("budget", 32);
-    let train = data::load_split(&dir, "train", 1.0, [1.0; 3]).unwrap();
+    let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
     let mut cfg = TrainConfig::preset("quick").unwrap();
     cfg.iters = 80;
     cfg.subdivide_min_after = 0;
@@ -202,7 +206,6 @@ fn voxel_budget_stops_subdivision() {
         "budget filled: {last:?}"
     );
     finish(&ctx);
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// The uniform baseline subdivides every voxel at once, up to its max level.
@@ -210,7 +213,7 @@ fn voxel_budget_stops_subdivision() {
 fn uniform_layout_subdivides_everything_to_its_level() {
     let ctx = context();
     let dir = demo_data("uniform", 32);
-    let train = data::load_split(&dir, "train", 1.0, [1.0; 3]).unwrap();
+    let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
     let mut cfg = TrainConfig::preset("quick").unwrap();
     cfg.iters = 60;
     cfg.subdivide_min_after = 0;
@@ -235,5 +238,4 @@ fn uniform_layout_subdivides_everything_to_its_level() {
         .collect();
     assert_eq!(splits.len(), 2, "{reports:?}");
     finish(&ctx);
-    let _ = std::fs::remove_dir_all(&dir);
 }

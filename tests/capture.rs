@@ -11,12 +11,14 @@ use svraster::data::capture::{self, load_colmap, load_shots, natural_cmp, Captur
 use svraster::data::colmap::{self, ColmapCamera, ColmapImage, ColmapPoint, Reconstruction};
 use svraster::data::image::save_rgb_png;
 use svraster::data::lens::{CameraModel, Lens};
+use tempfile::TempDir;
 
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("svraster-capture-{}-{name}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+/// A fresh directory named `svraster-capture-<name>-…`, removed when dropped.
+fn tmp(name: &str) -> TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("svraster-capture-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 /// Realistic parameters for each model at `w × h` (moderate distortion).
@@ -99,15 +101,15 @@ fn every_model_reconstruction() -> Reconstruction {
 fn colmap_binary_and_text_models_read_back_identical() {
     let rec = every_model_reconstruction();
     let (b, t) = (tmp("bin"), tmp("txt"));
-    colmap::write_bin(&b, &rec).unwrap();
-    colmap::write_txt(&t, &rec).unwrap();
-    let from_bin = colmap::read_model(&b).unwrap();
-    let from_txt = colmap::read_model(&t).unwrap();
+    colmap::write_bin(b.path(), &rec).unwrap();
+    colmap::write_txt(t.path(), &rec).unwrap();
+    let from_bin = colmap::read_model(b.path()).unwrap();
+    let from_txt = colmap::read_model(t.path()).unwrap();
     assert_eq!(from_bin, rec);
     assert_eq!(from_txt, rec);
     // No points3D file at all is fine.
-    std::fs::remove_file(b.join("points3D.bin")).unwrap();
-    assert!(colmap::read_model(&b).unwrap().points.is_empty());
+    std::fs::remove_file(b.path().join("points3D.bin")).unwrap();
+    assert!(colmap::read_model(b.path()).unwrap().points.is_empty());
     // Every model name and id round-trips.
     for m in CameraModel::all() {
         assert_eq!(CameraModel::from_id(m.id()), Some(m));
@@ -133,71 +135,74 @@ fn colmap_bad_models_are_named() {
     let dir = tmp("bad");
     // Truncated binary files, cut anywhere: an error naming the file, never a panic.
     for file in ["cameras.bin", "images.bin", "points3D.bin"] {
-        colmap::write_bin(&dir, &rec).unwrap();
-        let full = std::fs::read(dir.join(file)).unwrap();
+        colmap::write_bin(dir.path(), &rec).unwrap();
+        let full = std::fs::read(dir.path().join(file)).unwrap();
         for cut in [0, 7, 8, 13, full.len() / 2, full.len() - 1] {
-            std::fs::write(dir.join(file), &full[..cut]).unwrap();
-            expect_err(&dir, &[file]);
+            std::fs::write(dir.path().join(file), &full[..cut]).unwrap();
+            expect_err(dir.path(), &[file]);
         }
         let mut long = full.clone();
         long.push(0);
-        std::fs::write(dir.join(file), &long).unwrap();
-        expect_err(&dir, &[file, "trailing"]);
+        std::fs::write(dir.path().join(file), &long).unwrap();
+        expect_err(dir.path(), &[file, "trailing"]);
     }
     // An absurd count.
-    colmap::write_bin(&dir, &rec).unwrap();
-    let mut b = std::fs::read(dir.join("images.bin")).unwrap();
+    colmap::write_bin(dir.path(), &rec).unwrap();
+    let mut b = std::fs::read(dir.path().join("images.bin")).unwrap();
     b[..8].copy_from_slice(&u64::MAX.to_le_bytes());
-    std::fs::write(dir.join("images.bin"), &b).unwrap();
-    expect_err(&dir, &["images.bin", "truncated or corrupt"]);
+    std::fs::write(dir.path().join("images.bin"), &b).unwrap();
+    expect_err(dir.path(), &["images.bin", "truncated or corrupt"]);
     // Unknown model id / name.
-    colmap::write_bin(&dir, &rec).unwrap();
-    let mut b = std::fs::read(dir.join("cameras.bin")).unwrap();
+    colmap::write_bin(dir.path(), &rec).unwrap();
+    let mut b = std::fs::read(dir.path().join("cameras.bin")).unwrap();
     b[12..16].copy_from_slice(&99i32.to_le_bytes());
-    std::fs::write(dir.join("cameras.bin"), &b).unwrap();
+    std::fs::write(dir.path().join("cameras.bin"), &b).unwrap();
     expect_err(
-        &dir,
+        dir.path(),
         &["cameras.bin", "camera 10", "unknown camera model id 99"],
     );
     let t = tmp("badtxt");
-    colmap::write_txt(&t, &rec).unwrap();
-    let s = std::fs::read_to_string(t.join("cameras.txt")).unwrap();
+    colmap::write_txt(t.path(), &rec).unwrap();
+    let s = std::fs::read_to_string(t.path().join("cameras.txt")).unwrap();
     std::fs::write(
-        t.join("cameras.txt"),
+        t.path().join("cameras.txt"),
         s.replace("SIMPLE_PINHOLE", "PINHOLLE"),
     )
     .unwrap();
     expect_err(
-        &t,
+        t.path(),
         &["cameras.txt", "line 3", "unknown camera model `PINHOLLE`"],
     );
     // Wrong parameter count in text.
-    colmap::write_txt(&t, &rec).unwrap();
-    let s = std::fs::read_to_string(t.join("cameras.txt")).unwrap();
+    colmap::write_txt(t.path(), &rec).unwrap();
+    let s = std::fs::read_to_string(t.path().join("cameras.txt")).unwrap();
     let line = s.lines().nth(2).unwrap();
     std::fs::write(
-        t.join("cameras.txt"),
+        t.path().join("cameras.txt"),
         s.replace(line, &format!("{line} 0.5")),
     )
     .unwrap();
-    expect_err(&t, &["line 3", "4 parameters", "needs 3"]);
+    expect_err(t.path(), &["line 3", "4 parameters", "needs 3"]);
     // An image whose camera is missing.
     let mut r = rec.clone();
     r.images.get_mut(&103).unwrap().camera_id = 77;
-    colmap::write_bin(&dir, &r).unwrap();
-    expect_err(&dir, &["images.bin", "image 103", "camera 77"]);
+    colmap::write_bin(dir.path(), &r).unwrap();
+    expect_err(dir.path(), &["images.bin", "image 103", "camera 77"]);
     // NaN / zero rotations.
     for q in [[f64::NAN, 0.0, 0.0, 1.0], [0.0; 4]] {
         let mut r = rec.clone();
         r.images.get_mut(&104).unwrap().qvec = q;
-        colmap::write_txt(&t, &r).unwrap();
-        expect_err(&t, &["images.txt", "image 104", "not a rigid transform"]);
+        colmap::write_txt(t.path(), &r).unwrap();
+        expect_err(
+            t.path(),
+            &["images.txt", "image 104", "not a rigid transform"],
+        );
     }
     // Zero-size camera.
     let mut r = rec.clone();
     r.cameras.get_mut(&11).unwrap().width = 0;
-    colmap::write_bin(&dir, &r).unwrap();
-    expect_err(&dir, &["cameras.bin", "camera 11", "empty"]);
+    colmap::write_bin(dir.path(), &r).unwrap();
+    expect_err(dir.path(), &["cameras.bin", "camera 11", "empty"]);
 }
 
 /// `undistort` inverts `distort` for every perspective model, across the image.
@@ -296,7 +301,7 @@ fn lens_removal_at_load_matches_the_pinhole_pattern() {
     ] {
         let lens = Lens::new(model, params(model, w as f64, h as f64)).unwrap();
         let dir = tmp(&format!("lens-{}", model.name()));
-        std::fs::create_dir_all(dir.join("images")).unwrap();
+        std::fs::create_dir_all(dir.path().join("images")).unwrap();
         let photo: Vec<[f32; 3]> = (0..w * h)
             .map(|i| {
                 let (x, y) = ((i % w) as f64 + 0.5, (i / w) as f64 + 0.5);
@@ -306,7 +311,7 @@ fn lens_removal_at_load_matches_the_pinhole_pattern() {
             .collect();
         let shots: Vec<Shot> = (0..2)
             .map(|k| {
-                save_rgb_png(&dir.join(format!("images/p{k}.png")), w, h, &photo).unwrap();
+                save_rgb_png(&dir.path().join(format!("images/p{k}.png")), w, h, &photo).unwrap();
                 Shot {
                     name: format!("p{k}.png"),
                     lens: lens.clone(),
@@ -323,7 +328,7 @@ fn lens_removal_at_load_matches_the_pinhole_pattern() {
             holdout: 0,
             ..Default::default()
         };
-        let ds = load_shots(&dir, shots, "all", &opts).unwrap();
+        let ds = load_shots(dir.path(), shots, "all", &opts).unwrap();
         assert_eq!(ds.frames.len(), 2);
         let cam = &ds.frames[0].camera;
         assert_eq!((cam.width, cam.height), (w, h));
@@ -364,14 +369,14 @@ fn splits_hold_out_every_eighth_view_by_natural_name_order() {
     assert_eq!(names[10], "IMG_10.png");
     let (w, h) = (8u32, 6u32);
     let dir = tmp("split");
-    std::fs::create_dir_all(dir.join("images_2")).unwrap();
+    std::fs::create_dir_all(dir.path().join("images_2")).unwrap();
     let lens = Lens::new(CameraModel::SimplePinhole, vec![20.0, 8.0, 6.0]).unwrap();
     let shots: Vec<Shot> = names
         .iter()
         .enumerate()
         .map(|(k, n)| {
             let rgb = vec![[k as f32 / 20.0; 3]; (w * h) as usize];
-            save_rgb_png(&dir.join("images_2").join(n), w, h, &rgb).unwrap();
+            save_rgb_png(&dir.path().join("images_2").join(n), w, h, &rgb).unwrap();
             Shot {
                 name: n.clone(),
                 lens: lens.clone(),
@@ -385,8 +390,8 @@ fn splits_hold_out_every_eighth_view_by_natural_name_order() {
         })
         .collect();
     let opts = CaptureOptions::default();
-    let test = load_shots(&dir, shots.clone(), "test", &opts).unwrap();
-    let train = load_shots(&dir, shots.clone(), "train", &opts).unwrap();
+    let test = load_shots(dir.path(), shots.clone(), "test", &opts).unwrap();
+    let train = load_shots(dir.path(), shots.clone(), "train", &opts).unwrap();
     let names =
         |d: &svraster::data::Dataset| d.frames.iter().map(|f| f.name.clone()).collect::<Vec<_>>();
     assert_eq!(names(&test), ["IMG_0", "IMG_8", "IMG_16"]);
@@ -399,17 +404,17 @@ fn splits_hold_out_every_eighth_view_by_natural_name_order() {
         (8, 6, 10.0, 4.0, 3.0)
     );
     // A split that does not exist, too few views, a missing image.
-    let e = load_shots(&dir, shots.clone(), "val", &opts)
+    let e = load_shots(dir.path(), shots.clone(), "val", &opts)
         .unwrap_err()
         .to_string();
     assert!(e.contains("`val`"), "{e}");
-    let e = load_shots(&dir, shots[..1].to_vec(), "all", &opts)
+    let e = load_shots(dir.path(), shots[..1].to_vec(), "all", &opts)
         .unwrap_err()
         .to_string();
     assert!(e.contains("at least 2"), "{e}");
     let mut gone = shots.clone();
     gone[3].name = "nope.png".into();
-    let e = load_shots(&dir, gone, "all", &opts)
+    let e = load_shots(dir.path(), gone, "all", &opts)
         .unwrap_err()
         .to_string();
     assert!(e.contains("nope.png") && e.contains("images_2"), "{e}");
@@ -715,10 +720,10 @@ fn real_mip360_garden_nerfstudio_matches_colmap() {
 #[test]
 fn nerfstudio_fixture() {
     let dir = tmp("ns");
-    std::fs::create_dir_all(dir.join("imgs")).unwrap();
+    std::fs::create_dir_all(dir.path().join("imgs")).unwrap();
     for k in 0..3 {
         save_rgb_png(
-            &dir.join(format!("imgs/f{k}.png")),
+            &dir.path().join(format!("imgs/f{k}.png")),
             8,
             6,
             &vec![[0.5; 3]; 48],
@@ -736,14 +741,14 @@ fn nerfstudio_fixture() {
         ]
     });
     let write = |d: &serde_json::Value| {
-        std::fs::write(dir.join("transforms.json"), d.to_string()).unwrap();
+        std::fs::write(dir.path().join("transforms.json"), d.to_string()).unwrap();
     };
     write(&doc);
     assert_eq!(
-        svraster::data::detect_format(&dir),
+        svraster::data::detect_format(dir.path()),
         svraster::data::Format::Nerfstudio
     );
-    let ds = capture::load_nerfstudio(&dir, "all", &CaptureOptions::default()).unwrap();
+    let ds = capture::load_nerfstudio(dir.path(), "all", &CaptureOptions::default()).unwrap();
     let names: Vec<&str> = ds.frames.iter().map(|f| f.name.as_str()).collect();
     assert_eq!(names, ["f0", "f1", "f2"]);
     assert_eq!(ds.frames[0].camera.fx, 12.0);
@@ -760,14 +765,14 @@ fn nerfstudio_fixture() {
     doc["frames"][1]["transform_matrix"] =
         json!([[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]);
     write(&doc);
-    let e = capture::load_nerfstudio(&dir, "all", &CaptureOptions::default())
+    let e = capture::load_nerfstudio(dir.path(), "all", &CaptureOptions::default())
         .unwrap_err()
         .to_string();
     assert!(e.contains("frame 1") && e.contains("rigid"), "{e}");
     doc["frames"][1]["transform_matrix"] = pose(0.0);
     doc["camera_model"] = json!("EQUIRECTANGULAR");
     write(&doc);
-    let e = capture::load_nerfstudio(&dir, "all", &CaptureOptions::default())
+    let e = capture::load_nerfstudio(dir.path(), "all", &CaptureOptions::default())
         .unwrap_err()
         .to_string();
     assert!(e.contains("EQUIRECTANGULAR"), "{e}");
@@ -842,7 +847,7 @@ fn ply_points() {
                 }
             }
         }
-        let path = dir.join(format!("{fmt}.ply"));
+        let path = dir.path().join(format!("{fmt}.ply"));
         std::fs::write(&path, &b).unwrap();
         let got = svraster::data::ply::read_points(&path).unwrap();
         for (g, w) in got.iter().zip(&pts) {
@@ -899,7 +904,7 @@ fn write_npy(path: &Path, rows: usize, cols: usize, v: &[f64]) {
 #[test]
 fn llff_fixture() {
     let dir = tmp("llff");
-    std::fs::create_dir_all(dir.join("images_4")).unwrap();
+    std::fs::create_dir_all(dir.path().join("images_4")).unwrap();
     // Camera k at (k, 0, 0) looking down world −z with world y up: down = (0,−1,0),
     // right = (1,0,0), back = (0,0,1); full resolution 40×32 (h, w = 32, 40), f = 50.
     let row = |k: usize| -> Vec<f64> {
@@ -913,10 +918,10 @@ fn llff_fixture() {
         v
     };
     let rows: Vec<f64> = (0..3).flat_map(row).collect();
-    write_npy(&dir.join("poses_bounds.npy"), 3, 17, &rows);
+    write_npy(&dir.path().join("poses_bounds.npy"), 3, 17, &rows);
     for k in 0..3 {
         save_rgb_png(
-            &dir.join(format!("images_4/img{k}.png")),
+            &dir.path().join(format!("images_4/img{k}.png")),
             10,
             8,
             &vec![[0.2; 3]; 80],
@@ -924,10 +929,10 @@ fn llff_fixture() {
         .unwrap();
     }
     assert_eq!(
-        svraster::data::detect_format(&dir),
+        svraster::data::detect_format(dir.path()),
         svraster::data::Format::Llff
     );
-    let ds = capture::load_llff(&dir, "all", &CaptureOptions::default()).unwrap();
+    let ds = capture::load_llff(dir.path(), "all", &CaptureOptions::default()).unwrap();
     assert_eq!(ds.frames.len(), 3);
     let c = &ds.frames[2].camera;
     assert_eq!(
@@ -948,13 +953,13 @@ fn llff_fixture() {
     // A scaled rotation, and a count mismatch.
     let mut bad = rows.clone();
     bad[17 + 1] = 2.0;
-    write_npy(&dir.join("poses_bounds.npy"), 3, 17, &bad);
-    let e = capture::load_llff(&dir, "all", &CaptureOptions::default())
+    write_npy(&dir.path().join("poses_bounds.npy"), 3, 17, &bad);
+    let e = capture::load_llff(dir.path(), "all", &CaptureOptions::default())
         .unwrap_err()
         .to_string();
     assert!(e.contains("row 1") && e.contains("rigid"), "{e}");
-    write_npy(&dir.join("poses_bounds.npy"), 2, 17, &rows[..34]);
-    let e = capture::load_llff(&dir, "all", &CaptureOptions::default())
+    write_npy(&dir.path().join("poses_bounds.npy"), 2, 17, &rows[..34]);
+    let e = capture::load_llff(dir.path(), "all", &CaptureOptions::default())
         .unwrap_err()
         .to_string();
     assert!(e.contains("2 poses") && e.contains("3 images"), "{e}");

@@ -2,7 +2,6 @@
 //! layout, atomic saving, and one rejection test per class of corrupt file.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
@@ -16,37 +15,30 @@ use svraster::scene::{
 // ---------------------------------------------------------------------------------------
 // Helpers
 
-/// A fresh, uniquely named directory under the system temp dir, removed on drop.
-struct TempDir(PathBuf);
+/// A fresh, uniquely named directory `svraster-ckpt-test-<tag>-…` under the system temp
+/// dir, removed on drop.
+struct TempDir(tempfile::TempDir);
 
 impl TempDir {
     fn new(tag: &str) -> TempDir {
-        static N: AtomicU64 = AtomicU64::new(0);
-        let p = std::env::temp_dir().join(format!(
-            "svraster-ckpt-test-{}-{tag}-{}",
-            std::process::id(),
-            N.fetch_add(1, Ordering::Relaxed)
-        ));
-        std::fs::create_dir_all(&p).unwrap();
-        TempDir(p)
+        TempDir(
+            tempfile::Builder::new()
+                .prefix(&format!("svraster-ckpt-test-{tag}-"))
+                .tempdir()
+                .unwrap(),
+        )
     }
     fn path(&self, name: &str) -> PathBuf {
-        self.0.join(name)
+        self.0.path().join(name)
     }
     /// Names of everything in the directory, sorted.
     fn list(&self) -> Vec<String> {
-        let mut v: Vec<String> = std::fs::read_dir(&self.0)
+        let mut v: Vec<String> = std::fs::read_dir(self.0.path())
             .unwrap()
             .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
             .collect();
         v.sort();
         v
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
     }
 }
 
@@ -548,7 +540,7 @@ fn metadata_numbers_round_trip_and_are_json() {
 #[test]
 fn save_into_missing_directory_fails_cleanly() {
     let dir = TempDir::new("missing");
-    let target = dir.0.join("no-such-dir").join("scene.safetensors");
+    let target = dir.0.path().join("no-such-dir").join("scene.safetensors");
     let e = save(&base_scene(), &target).unwrap_err().to_string();
     assert!(e.contains("does not exist"), "{e}");
     assert!(e.contains("no-such-dir"), "{e}");

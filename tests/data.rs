@@ -1,42 +1,21 @@
 //! Dataset loading, PNG I/O, the demo dataset writer and the demo voxelizer.
 
 use std::collections::HashMap;
-use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::path::Path;
 
 use svraster::data::demo::{self, DemoOptions, PRIMITIVES};
 use svraster::data::image::{load_rgba, save_gray_png, save_rgb_png, save_rgba_png};
 use svraster::data::Camera;
 use svraster::data::{area_resample, load_split};
 use svraster::scene::{ijk_from_octpath, Scene};
+use tempfile::TempDir;
 
-/// A fresh folder under the system temp dir, removed on drop.
-struct TempDir(PathBuf);
-
-impl TempDir {
-    fn new(tag: &str) -> TempDir {
-        static N: AtomicU64 = AtomicU64::new(0);
-        let nanos = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map(|d| d.subsec_nanos())
-            .unwrap_or(0);
-        let p = std::env::temp_dir().join(format!(
-            "svraster-data-{tag}-{}-{}-{nanos}",
-            std::process::id(),
-            N.fetch_add(1, Ordering::Relaxed)
-        ));
-        std::fs::create_dir_all(&p).unwrap();
-        TempDir(p)
-    }
-    fn path(&self) -> &Path {
-        &self.0
-    }
-}
-
-impl Drop for TempDir {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
+/// A fresh folder `svraster-data-<tag>-…` under the system temp dir, removed on drop.
+fn temp_dir(tag: &str) -> TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("svraster-data-{tag}-"))
+        .tempdir()
+        .unwrap()
 }
 
 const ANGLE: f64 = 0.6911112070083618;
@@ -79,7 +58,7 @@ fn transforms(frames: &[&str]) -> String {
 /// A dataset with split `train`: two 4×2 frames `./train/r_0` (png, no extension in
 /// the JSON) and `./train/r_1.png` (extension given).
 fn tiny_dataset(tag: &str) -> TempDir {
-    let dir = TempDir::new(tag);
+    let dir = temp_dir(tag);
     write_png8(&dir.path().join("train/r_0.png"), 4, 2, &tiny_pixels());
     let mut second = tiny_pixels();
     second.reverse();
@@ -164,7 +143,7 @@ fn loader_downscale_2_is_a_box_average() {
 
 #[test]
 fn loader_fractional_downscale_keeps_mean_colour() {
-    let dir = TempDir::new("frac");
+    let dir = temp_dir("frac");
     // 10×6 pseudo-random opaque image.
     let mut s = 12345u32;
     let px: Vec<[u8; 4]> = (0..60)
@@ -228,7 +207,7 @@ fn area_resample_weights() {
 
 #[test]
 fn loader_honours_instant_ngp_intrinsics() {
-    let dir = TempDir::new("ngp");
+    let dir = temp_dir("ngp");
     write_png8(&dir.path().join("img/0.png"), 4, 2, &tiny_pixels());
     let text = format!(
         r#"{{"fl_x": 3.0, "fl_y": 3.5, "cx": 1.75, "cy": 1.25, "w": 4, "h": 2,
@@ -270,7 +249,7 @@ fn assert_contains(msg: &str, parts: &[&str]) {
 
 #[test]
 fn error_missing_dir() {
-    let dir = TempDir::new("nodir");
+    let dir = temp_dir("nodir");
     let missing = dir.path().join("nope");
     let e = load_split(&missing, "train", 1.0, [0.0; 3])
         .unwrap_err()
@@ -442,7 +421,7 @@ fn error_bad_downscale() {
 
 #[test]
 fn png_roundtrip_clamps_and_rounds() {
-    let dir = TempDir::new("png");
+    let dir = temp_dir("png");
     let p = dir.path().join("a.png");
     let rgb = [[-0.5f32, 0.5, 2.0], [0.25, f32::NAN, 1.0]];
     save_rgb_png(&p, 2, 1, &rgb).unwrap();
@@ -482,7 +461,7 @@ fn png_roundtrip_clamps_and_rounds() {
 
 #[test]
 fn load_rgba_16_bit_and_gray() {
-    let dir = TempDir::new("png16");
+    let dir = temp_dir("png16");
     let p16 = dir.path().join("rgb16.png");
     image::ImageBuffer::<image::Rgb<u16>, _>::from_raw(2, 1, vec![0u16, 65535, 32768, 1, 2, 3])
         .unwrap()
@@ -588,7 +567,7 @@ fn pixel_hits(cam: &Camera, px: u32, py: u32, n: u32) -> (bool, bool) {
 
 #[test]
 fn demo_dataset_roundtrip() {
-    let dir = TempDir::new("demo");
+    let dir = temp_dir("demo");
     let opts = small_demo();
     demo::write_dataset(dir.path(), &opts).unwrap();
     let splits = demo::demo_splits(&opts).unwrap();
@@ -662,7 +641,7 @@ fn demo_is_deterministic() {
         test: 1,
         seed: 3,
     };
-    let (a, b) = (TempDir::new("det-a"), TempDir::new("det-b"));
+    let (a, b) = (temp_dir("det-a"), temp_dir("det-b"));
     demo::write_dataset(a.path(), &opts).unwrap();
     demo::write_dataset(b.path(), &opts).unwrap();
     for f in [

@@ -491,8 +491,10 @@ mod tests {
 
     #[test]
     fn draws_series_text_and_skips_bad_points() {
-        let dir = std::env::temp_dir().join(format!("svraster-plot-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = tempfile::Builder::new()
+            .prefix("svraster-plot-")
+            .tempdir()
+            .unwrap();
         let chart = Chart {
             title: "quality vs size".into(),
             x_label: "voxels".into(),
@@ -513,7 +515,7 @@ mod tests {
             y_log: false,
             markers: true,
         };
-        let p = dir.join("c.png");
+        let p = dir.path().join("c.png");
         save_row(&[chart.clone(), chart.clone()], &p, 400, 300).unwrap();
         let img = decode(&p);
         assert_eq!((img.width(), img.height()), (800, 300));
@@ -547,7 +549,7 @@ mod tests {
         };
         save_row(&[empty], &p, 300, 200).unwrap();
         assert_eq!(decode(&p).dimensions(), (300, 200));
-        std::fs::remove_dir_all(&dir).unwrap();
+        dir.close().unwrap();
     }
 
     #[test]

@@ -264,13 +264,15 @@ mod tests {
 
     #[test]
     fn optimizer_state_round_trips_and_bad_files_are_named() {
-        let dir = std::env::temp_dir().join(format!("svraster-opt-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = tempfile::Builder::new()
+            .prefix("svraster-opt-")
+            .tempdir()
+            .unwrap();
         let state: Vec<Vec<f32>> = (0..6)
             .map(|g| (0..g * 3).map(|i| i as f32 * 0.5 - 1e-30).collect())
             .collect();
         let model = b"model bytes".to_vec();
-        let path = dir.join(OPT_FILE);
+        let path = dir.path().join(OPT_FILE);
         std::fs::write(&path, optimizer_bytes(1234, &model, &state).unwrap()).unwrap();
         let (iter, hash, back) = load_optimizer(&path).unwrap();
         assert_eq!((iter, hash), (1234, fnv64(&model)));
@@ -301,6 +303,6 @@ mod tests {
             let e = format!("{:#}", load_optimizer(&path).unwrap_err());
             assert!(e.contains(OPT_FILE) && e.contains(want), "{e}");
         }
-        std::fs::remove_dir_all(&dir).unwrap();
+        dir.close().unwrap();
     }
 }
