@@ -4,6 +4,8 @@
 use std::path::PathBuf;
 use std::process::Command;
 
+use tempfile::TempDir;
+
 fn svraster(args: &[&str]) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_svraster"))
         .arg("--validation")
@@ -17,16 +19,18 @@ fn svraster(args: &[&str]) -> (bool, String, String) {
     )
 }
 
-fn tmp(name: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("svraster-cli-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    d
+/// A fresh, empty directory named `svraster-cli-<name>-…`, removed when dropped.
+fn tmp(name: &str) -> TempDir {
+    tempfile::Builder::new()
+        .prefix(&format!("svraster-cli-{name}-"))
+        .tempdir()
+        .unwrap()
 }
 
 #[test]
 fn demo_then_render_and_bench() {
     let dir = tmp("demo");
-    let d = dir.to_str().unwrap();
+    let d = dir.path().to_str().unwrap();
     let (ok, out, err) = svraster(&[
         "demo", "--out", d, "--size", "32", "--level", "4", "--iters", "60",
     ]);
@@ -46,31 +50,36 @@ fn demo_then_render_and_bench() {
         "model.safetensors",
         "optimizer.safetensors",
     ] {
-        assert!(dir.join("run").join(f).is_file(), "missing run/{f}");
+        assert!(dir.path().join("run").join(f).is_file(), "missing run/{f}");
     }
     // The training curves (PSNR, loss, voxels: three panels).
-    let curves = image::open(dir.join("run/training.png")).expect("run/training.png decodes");
+    let curves =
+        image::open(dir.path().join("run/training.png")).expect("run/training.png decodes");
     assert!(
         curves.width() >= 3 * curves.height() / 2,
         "{:?}",
         (curves.width(), curves.height())
     );
     for i in 0..10 {
-        assert!(dir.join(format!("renders/r_{i}.png")).is_file());
-        assert!(dir.join(format!("renders/r_{i}_depth.png")).is_file());
+        assert!(dir.path().join(format!("renders/r_{i}.png")).is_file());
+        assert!(dir
+            .path()
+            .join(format!("renders/r_{i}_depth.png"))
+            .is_file());
     }
     // Metric depth: 16-bit counts × the sidecar's scale are camera depths inside the
     // sidecar's range (0: no surface); the normal map is black where there is no surface.
-    let side: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(dir.join("renders/r_0_depth.json")).unwrap())
-            .unwrap();
+    let side: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("renders/r_0_depth.json")).unwrap(),
+    )
+    .unwrap();
     let scale = side["scale"].as_f64().unwrap();
     let (lo, hi) = (
         side["min_depth"].as_f64().unwrap(),
         side["max_depth"].as_f64().unwrap(),
     );
     assert!(scale > 0.0 && 0.0 < lo && lo <= hi, "{side}");
-    let d16 = image::open(dir.join("renders/r_0_depth16.png"))
+    let d16 = image::open(dir.path().join("renders/r_0_depth16.png"))
         .unwrap()
         .to_luma16();
     let alpha_px: Vec<&image::Luma<u16>> = d16.pixels().filter(|p| p.0[0] > 0).collect();
@@ -82,7 +91,7 @@ fn demo_then_render_and_bench() {
             "{z} outside [{lo}, {hi}]"
         );
     }
-    let nrm = image::open(dir.join("renders/r_0_normal.png"))
+    let nrm = image::open(dir.path().join("renders/r_0_normal.png"))
         .unwrap()
         .to_rgb8();
     for (x, y, p) in d16.enumerate_pixels() {
@@ -93,12 +102,12 @@ fn demo_then_render_and_bench() {
     }
     assert_eq!(nrm.get_pixel(0, 0).0, [0, 0, 0], "the corner is background");
 
-    let r = dir.join("val_renders");
+    let r = dir.path().join("val_renders");
     let (ok, out, err) = svraster(&[
         "render",
-        dir.join("run").to_str().unwrap(), // a run directory holding model.safetensors
+        dir.path().join("run").to_str().unwrap(), // a run directory holding model.safetensors
         "--data",
-        dir.join("data").to_str().unwrap(),
+        dir.path().join("data").to_str().unwrap(),
         "--split",
         "val",
         "--downscale",
@@ -117,19 +126,19 @@ fn demo_then_render_and_bench() {
     assert!(r.join("r_0_normal.png").is_file());
 
     // Two frames with one file stem get distinct outputs (none overwrites the other).
-    let tj = dir.join("data/transforms_val.json");
+    let tj = dir.path().join("data/transforms_val.json");
     let mut t: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&tj).unwrap()).unwrap();
     let first = t["frames"][0].clone();
     t["frames"].as_array_mut().unwrap().push(first);
     let n = t["frames"].as_array().unwrap().len();
     std::fs::write(&tj, t.to_string()).unwrap();
-    let r2 = dir.join("dup_renders");
+    let r2 = dir.path().join("dup_renders");
     let (ok, _, err) = svraster(&[
         "render",
-        dir.join("run").to_str().unwrap(),
+        dir.path().join("run").to_str().unwrap(),
         "--data",
-        dir.join("data").to_str().unwrap(),
+        dir.path().join("data").to_str().unwrap(),
         "--split",
         "val",
         "--out",
@@ -143,9 +152,9 @@ fn demo_then_render_and_bench() {
     let (ok, out, err) = svraster(&[
         "bench",
         "render",
-        dir.join("run/model.safetensors").to_str().unwrap(),
+        dir.path().join("run/model.safetensors").to_str().unwrap(),
         "--data",
-        dir.join("data").to_str().unwrap(),
+        dir.path().join("data").to_str().unwrap(),
         "--views",
         "2",
         "--runs",
@@ -157,23 +166,20 @@ fn demo_then_render_and_bench() {
     assert!(v["median_ms"].as_f64().unwrap() > 0.0);
     assert!(v["entries_median"].as_f64().unwrap() > 0.0);
     assert!(v["stages_median_ms"]["composite"].as_f64().is_some());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn render_rejects_bad_input_with_one_clear_error() {
     let dir = tmp("bad");
-    std::fs::create_dir_all(&dir).unwrap();
-    let d = dir.to_str().unwrap();
+    let d = dir.path().to_str().unwrap();
     let (ok, _, err) = svraster(&["render", d, "--data", d, "--out", d]);
     assert!(!ok && err.contains("model.safetensors"), "{err}");
 
-    let bad = dir.join("bad.safetensors");
+    let bad = dir.path().join("bad.safetensors");
     std::fs::write(&bad, b"\x10\x00\x00\x00\x00\x00\x00\x00{not json}      ").unwrap();
     let (ok, _, err) = svraster(&["render", bad.to_str().unwrap(), "--data", d, "--out", d]);
     assert!(!ok && err.contains("bad.safetensors"), "{err}");
     assert_eq!(err.trim().lines().count(), 1, "one error line: {err}");
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// Every line of a run's stats.jsonl.
@@ -196,7 +202,7 @@ fn logged(run: &std::path::Path) -> Vec<serde_json::Value> {
 #[test]
 fn train_interrupt_resume_eval_and_bench() {
     let dir = tmp("train");
-    let data = dir.join("data");
+    let data = dir.path().join("data");
     // A small dataset (the demo generator, no training).
     svraster::data::demo::write_dataset(
         &data,
@@ -211,7 +217,7 @@ fn train_interrupt_resume_eval_and_bench() {
     )
     .unwrap();
     let ds = data.to_str().unwrap();
-    let run = dir.join("run");
+    let run = dir.path().join("run");
     let rs = run.to_str().unwrap();
     let args = [
         "train",
@@ -330,7 +336,7 @@ fn train_interrupt_resume_eval_and_bench() {
     assert_eq!(v["supersample"], 1.0, "{v}");
     let mut scene = svraster::scene::checkpoint::load(&run.join("model.safetensors")).unwrap();
     scene.supersample = 1.5;
-    let ss_model = dir.join("ss15.safetensors");
+    let ss_model = dir.path().join("ss15.safetensors");
     svraster::scene::checkpoint::save(&scene, &ss_model).unwrap();
     let sm = ss_model.to_str().unwrap();
     for (extra, want) in [(None, 1.5), (Some("1"), 1.0), (Some("2"), 2.0)] {
@@ -375,15 +381,14 @@ fn train_interrupt_resume_eval_and_bench() {
             "stage {s} missing: {v}"
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn train_rejects_bad_input_with_one_clear_error() {
     let dir = tmp("trainbad");
-    let data = dir.join("data");
+    let data = dir.path().join("data");
     let d = data.to_str().unwrap();
-    let out = dir.join("run");
+    let out = dir.path().join("run");
     let o = out.to_str().unwrap();
     // Missing dataset.
     let (ok, _, err) = svraster(&["train", d, "--out", o]);
@@ -436,13 +441,12 @@ fn train_rejects_bad_input_with_one_clear_error() {
         !ok && err.contains("cannot resume a run from an older version"),
         "{err}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 #[test]
 fn bench_trade_writes_table_json_and_chart() {
     let dir = tmp("trade");
-    let data = dir.join("data");
+    let data = dir.path().join("data");
     svraster::data::demo::write_dataset(
         &data,
         &svraster::data::demo::DemoOptions {
@@ -455,7 +459,7 @@ fn bench_trade_writes_table_json_and_chart() {
         },
     )
     .unwrap();
-    let out = dir.join("trade");
+    let out = dir.path().join("trade");
     // The same comparison both times (the second run adds --reuse).
     let trade = |extra: &[&str]| {
         let mut args = vec![
@@ -551,7 +555,7 @@ fn bench_trade_writes_table_json_and_chart() {
     assert_eq!(saved["key"]["iters"], 160);
 
     // A uniform variant the budget stops short of its level is marked as such.
-    let capped_out = dir.join("capped");
+    let capped_out = dir.path().join("capped");
     let (ok, stdout3, err3) = svraster(&[
         "bench",
         "trade",
@@ -583,7 +587,6 @@ fn bench_trade_writes_table_json_and_chart() {
         md.contains("uniform-5 (capped by the budget at level"),
         "{md}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A small demo dataset in `dir/name` (no training).
@@ -631,10 +634,10 @@ fn checkpoint_iter(run: &std::path::Path) -> u64 {
 #[test]
 fn resume_is_the_same_run_and_checkpoints_are_atomic() {
     let dir = tmp("resume-same");
-    let data = small_data(&dir, "data", 1);
-    let other = small_data(&dir, "other", 2);
+    let data = small_data(dir.path(), "data", 1);
+    let other = small_data(dir.path(), "other", 2);
     let (ds, os) = (data.to_str().unwrap(), other.to_str().unwrap());
-    let run = dir.join("run");
+    let run = dir.path().join("run");
     let rs = run.to_str().unwrap();
     let (ok, _, err) = svraster(&[
         "train",
@@ -720,12 +723,11 @@ fn resume_is_the_same_run_and_checkpoints_are_atomic() {
         (Some("val"), Some(12)),
         "{v}"
     );
-    let r = dir.join("renders");
+    let r = dir.path().join("renders");
     let (ok, _, err) = svraster(&["render", rs, "--data", ds, "--out", r.to_str().unwrap()]);
     assert!(ok, "{err}");
     let img = image::open(r.join("r_0.png")).unwrap();
     assert_eq!((img.width(), img.height()), (12, 12));
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// SIGTERM saves and exits like Ctrl-C; a second process cannot train into a locked run
@@ -733,9 +735,9 @@ fn resume_is_the_same_run_and_checkpoints_are_atomic() {
 #[test]
 fn sigterm_saves_runs_are_locked_and_stats_are_truncated_on_resume() {
     let dir = tmp("sigterm");
-    let data = small_data(&dir, "data", 3);
+    let data = small_data(dir.path(), "data", 3);
     let ds = data.to_str().unwrap();
-    let run = dir.join("run");
+    let run = dir.path().join("run");
     let rs = run.to_str().unwrap();
     let child = Command::new(env!("CARGO_BIN_EXE_svraster"))
         .args([
@@ -806,7 +808,6 @@ fn sigterm_saves_runs_are_locked_and_stats_are_truncated_on_resume() {
         logged_iters.windows(2).all(|w| w[0] < w[1]),
         "{logged_iters:?}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `demo --out` never deletes what it did not create, and checks its arguments before
@@ -814,18 +815,18 @@ fn sigterm_saves_runs_are_locked_and_stats_are_truncated_on_resume() {
 #[test]
 fn demo_keeps_directories_it_did_not_make() {
     let dir = tmp("demo-foreign");
-    let run = dir.join("run");
+    let run = dir.path().join("run");
     std::fs::create_dir_all(&run).unwrap();
     std::fs::write(run.join("precious.txt"), b"mine").unwrap();
-    let d = dir.to_str().unwrap();
+    let d = dir.path().to_str().unwrap();
     let (ok, _, err) = svraster(&["demo", "--out", d, "--size", "16", "--iters", "5"]);
     assert!(!ok && err.contains("not made by"), "{err}");
     assert_eq!(std::fs::read(run.join("precious.txt")).unwrap(), b"mine");
-    assert!(!dir.join("data").exists(), "nothing written");
+    assert!(!dir.path().join("data").exists(), "nothing written");
 
     // A demo directory from before the mark (its run trained on its own data/) is the
     // demo's: it is replaced.
-    let legacy = dir.join("legacy");
+    let legacy = dir.path().join("legacy");
     std::fs::create_dir_all(legacy.join("run")).unwrap();
     std::fs::create_dir_all(legacy.join("data")).unwrap();
     let data_abs = std::fs::canonicalize(legacy.join("data")).unwrap();
@@ -843,12 +844,11 @@ fn demo_keeps_directories_it_did_not_make() {
         legacy.join(".svraster-demo").is_file() && legacy.join("run/model.safetensors").is_file()
     );
 
-    let fresh = dir.join("fresh");
+    let fresh = dir.path().join("fresh");
     let f = fresh.to_str().unwrap();
     let (ok, _, err) = svraster(&["demo", "--out", f, "--level", "0", "--iters", "5"]);
     assert!(!ok && err.contains("grid_level"), "{err}");
     assert!(!fresh.exists(), "a rejected demo wrote {}", fresh.display());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// `bench sort` with more keys than the device (or host) can hold is one clear error.
@@ -867,8 +867,8 @@ fn bench_sort_too_large_is_a_clear_error() {
 #[test]
 fn train_refuses_a_budget_below_the_starting_grid() {
     let dir = tmp("budget-small");
-    let data = small_data(&dir, "data", 4);
-    let run = dir.join("run");
+    let data = small_data(dir.path(), "data", 4);
+    let run = dir.path().join("run");
     let (ok, _, err) = svraster(&[
         "train",
         data.to_str().unwrap(),
@@ -888,7 +888,6 @@ fn train_refuses_a_budget_below_the_starting_grid() {
         "{err}"
     );
     assert!(!run.join("model.safetensors").exists() && !run.join("config.json").exists());
-    let _ = std::fs::remove_dir_all(&dir);
 }
 
 /// A unit quaternion `[w, x, y, z]` of a rotation matrix (rows).
@@ -942,7 +941,7 @@ fn colmap_capture_train_eval_with_data_options() {
     use svraster::data::lens::CameraModel;
     let demo = tmp("cap-demo");
     svraster::data::demo::write_dataset(
-        &demo,
+        demo.path(),
         &svraster::data::demo::DemoOptions {
             width: 24,
             height: 24,
@@ -953,10 +952,10 @@ fn colmap_capture_train_eval_with_data_options() {
         },
     )
     .unwrap();
-    let ds = svraster::data::load_split(&demo, "train", 1.0, [0.0; 3]).unwrap();
+    let ds = svraster::data::load_split(demo.path(), "train", 1.0, [0.0; 3]).unwrap();
     let dir = tmp("cap");
-    std::fs::create_dir_all(dir.join("images_2")).unwrap();
-    std::fs::create_dir_all(dir.join("sparse/0")).unwrap();
+    std::fs::create_dir_all(dir.path().join("images_2")).unwrap();
+    std::fs::create_dir_all(dir.path().join("sparse/0")).unwrap();
     let c = &ds.frames[0].camera;
     let mut rec = Reconstruction::default();
     rec.cameras.insert(
@@ -971,8 +970,13 @@ fn colmap_capture_train_eval_with_data_options() {
     );
     for (k, f) in ds.frames.iter().enumerate() {
         let name = format!("shot_{k}.png");
-        svraster::data::image::save_rgb_png(&dir.join("images_2").join(&name), 24, 24, &f.rgb)
-            .unwrap();
+        svraster::data::image::save_rgb_png(
+            &dir.path().join("images_2").join(&name),
+            24,
+            24,
+            &f.rgb,
+        )
+        .unwrap();
         // World-to-camera: R = c2w_Rᵀ, t = −R·centre.
         let r: [[f64; 3]; 3] = std::array::from_fn(|i| std::array::from_fn(|j| f.camera.c2w[j][i]));
         let o = f.camera.origin();
@@ -989,9 +993,9 @@ fn colmap_capture_train_eval_with_data_options() {
             },
         );
     }
-    colmap::write_bin(&dir.join("sparse/0"), &rec).unwrap();
+    colmap::write_bin(&dir.path().join("sparse/0"), &rec).unwrap();
     let run = tmp("cap-run");
-    let (d, r) = (dir.to_str().unwrap(), run.to_str().unwrap());
+    let (d, r) = (dir.path().to_str().unwrap(), run.path().to_str().unwrap());
     let (ok, _, err) = svraster(&[
         "train",
         d,
@@ -1015,8 +1019,25 @@ fn colmap_capture_train_eval_with_data_options() {
     assert!(ok, "{err}");
     assert!(err.contains("main region (camera_median"), "{err}");
     assert!(err.contains("on 12 views of 24×24"), "{err}");
+    // The voxel split reported at the end: the main region is [-1, 1]³ in the model's
+    // frame; counted here from the saved model by the voxels' corners.
+    let model = svraster::scene::checkpoint::load(&run.path().join("model.safetensors")).unwrap();
+    let main = (0..model.num_voxels())
+        .filter(|&i| {
+            let (lo, s) = (model.voxel_min(i), model.voxel_size(i));
+            lo.iter().all(|&v| v >= -1.0 && v + s <= 1.0)
+        })
+        .count();
+    let want = format!(
+        "({} voxels: {main} in the main region, {} in the background shells)",
+        model.num_voxels(),
+        model.num_voxels() - main
+    );
+    assert!(main > 0 && main < model.num_voxels(), "{want}");
+    assert!(err.contains(&want), "{want} not in {err}");
     let cfg: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
+        serde_json::from_str(&std::fs::read_to_string(run.path().join("config.json")).unwrap())
+            .unwrap();
     assert_eq!(cfg["preset"], "real");
     assert_eq!(cfg["source"]["images"], "images_2");
     assert_eq!(cfg["source"]["holdout"], 4);
@@ -1035,14 +1056,11 @@ fn colmap_capture_train_eval_with_data_options() {
     // Capture options on Blender data.
     let (ok, _, err) = svraster(&[
         "train",
-        demo.to_str().unwrap(),
+        demo.path().to_str().unwrap(),
         "--out",
-        tmp("cap-bad").to_str().unwrap(),
+        tmp("cap-bad").path().to_str().unwrap(),
         "--holdout",
         "4",
     ]);
     assert!(!ok && err.contains("apply to captures"), "{err}");
-    for p in [demo, dir, run] {
-        let _ = std::fs::remove_dir_all(p);
-    }
 }

@@ -1,4 +1,5 @@
-//! The pixel-loss kernel (MSE + transmittance concentration) vs an f64 reference, whose
+//! The pixel-loss kernel (MSE + transmittance concentration + inside term) vs an f64
+//! reference, whose
 //! gradient is checked by central differences; and the distortion sum against the
 //! f64 reference forward.
 
@@ -9,21 +10,32 @@ use common::{camera_outside, context, finish, random_scene, Rng};
 use svraster::raster::{RenderOptions, Renderer, CHANNELS};
 use svraster::scene::SceneGpu;
 use svraster::train::backward::{dout, Backward};
-use svraster::train::loss::PixelLoss;
+use svraster::train::loss::{LossWeights, PixelLoss};
 
-/// f64 loss: λ_mse·mean((rgb − gt)²) + λ_T·mean(T²(1−T)²), T = 1 − alpha.
-fn loss(rgb: &[[f64; 3]], alpha: &[f64], gt: &[[f64; 3]], lm: f64, lt: f64) -> f64 {
+/// f64 loss weights: λ_mse, λ_T (concentration), λ_T_inside.
+#[derive(Clone, Copy)]
+struct W {
+    m: f64,
+    t: f64,
+    i: f64,
+}
+
+/// f64 loss: λ_mse·mean((rgb − gt)²) + λ_T·mean(T²(1−T)²) + λ_in·mean(T²),
+/// T = 1 − alpha.
+fn loss(rgb: &[[f64; 3]], alpha: &[f64], gt: &[[f64; 3]], w: W) -> f64 {
     let n = rgb.len() as f64;
     let mut se = 0.0;
     let mut tc = 0.0;
+    let mut tin = 0.0;
     for p in 0..rgb.len() {
         for c in 0..3 {
             se += (rgb[p][c] - gt[p][c]).powi(2);
         }
         let t = 1.0 - alpha[p];
         tc += t * t * (1.0 - t) * (1.0 - t);
+        tin += t * t;
     }
-    lm * se / (3.0 * n) + lt * tc / n
+    w.m * se / (3.0 * n) + w.t * tc / n + w.i * tin / n
 }
 
 #[test]
@@ -34,7 +46,11 @@ fn pixel_losses_match_the_f64_reference() {
     for g in scene.geo.iter_mut() {
         *g = rng.range(-5.0, 3.0) as f32;
     }
-    let (lm, lt) = (1.3f64, 0.7f64);
+    let w = W {
+        m: 1.3,
+        t: 0.7,
+        i: 0.45,
+    };
     for ss in [1.0f32, 1.5] {
         let cam = camera_outside(&mut rng, &scene, 37, 29);
         let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
@@ -71,8 +87,11 @@ fn pixel_losses_match_the_f64_reference() {
                 out,
                 gt_buf.address(),
                 dout_addr,
-                lm as f32,
-                lt as f32,
+                LossWeights {
+                    mse: w.m as f32,
+                    t_concentration: w.t as f32,
+                    t_inside: w.i as f32,
+                },
             )
         })
         .unwrap();
@@ -84,12 +103,20 @@ fn pixel_losses_match_the_f64_reference() {
         let rgb: Vec<[f64; 3]> = img.rgb.iter().map(|c| c.map(|v| v as f64)).collect();
         let alpha: Vec<f64> = img.alpha.iter().map(|&a| a as f64).collect();
         // Value.
-        let l_ref = loss(&rgb, &alpha, &gt, lm, lt);
-        let l_gpu =
-            lm * sums.squared_error / (3.0 * np as f64) + lt * sums.t_concentration / np as f64;
+        let l_ref = loss(&rgb, &alpha, &gt, w);
+        let l_gpu = w.m * sums.squared_error / (3.0 * np as f64)
+            + w.t * sums.t_concentration / np as f64
+            + w.i * sums.t_inside / np as f64;
         assert!(
             (l_gpu - l_ref).abs() <= 1e-5 * l_ref,
             "loss {l_gpu} vs {l_ref}"
+        );
+        // Each term's sum on its own (the logged values).
+        let t_inside_ref: f64 = alpha.iter().map(|a| (1.0 - a).powi(2)).sum();
+        assert!(
+            (sums.t_inside - t_inside_ref).abs() <= 1e-5 * t_inside_ref,
+            "Σ T² {} vs {t_inside_ref}",
+            sums.t_inside
         );
         // Gradients vs central differences of the f64 loss (it is a polynomial: h = 1e-4
         // leaves only rounding), for every pixel's rgb and alpha.
@@ -108,7 +135,7 @@ fn pixel_losses_match_the_f64_reference() {
                         a1[p] += h;
                         a2[p] -= h;
                     }
-                    (loss(&r1, &a1, &gt, lm, lt) - loss(&r2, &a2, &gt, lm, lt)) / (2.0 * h)
+                    (loss(&r1, &a1, &gt, w) - loss(&r2, &a2, &gt, w)) / (2.0 * h)
                 };
                 let ch = if c < 3 { dout::R + c } else { dout::ALPHA };
                 let g = d[ch * np + p] as f64;

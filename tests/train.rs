@@ -8,12 +8,17 @@ use svraster::data::{self, demo};
 use svraster::scene::Scene;
 use svraster::train::config::TrainConfig;
 use svraster::train::trainer::{uniform_grid, Trainer};
+use tempfile::TempDir;
 
-fn demo_data(name: &str, size: u32) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("svraster-train-{name}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+/// The demo dataset in a fresh directory named `svraster-train-<name>-…`, removed when
+/// dropped.
+fn demo_data(name: &str, size: u32) -> TempDir {
+    let dir = tempfile::Builder::new()
+        .prefix(&format!("svraster-train-{name}-"))
+        .tempdir()
+        .unwrap();
     demo::write_dataset(
-        &dir,
+        dir.path(),
         &demo::DemoOptions {
             width: size,
             height: size,
@@ -110,8 +115,8 @@ fn training_smoke_test_on_the_demo_scene() {
     // the held-out PSNR far above the initial model's.
     let ctx = context();
     let dir = demo_data("smoke", 48);
-    let train = data::load_split(&dir, "train", 1.0, [1.0; 3]).unwrap();
-    let val = data::load_split(&dir, "val", 1.0, [1.0; 3]).unwrap();
+    let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
+    let val = data::load_split(dir.path(), "val", 1.0, [1.0; 3]).unwrap();
     let cfg = quick(300);
     let init = uniform_grid(&cfg).unwrap();
     let before = mean_psnr(&ctx, &init, &val);
@@ -140,7 +145,90 @@ fn training_smoke_test_on_the_demo_scene() {
     assert!(after > before + 6.0, "val PSNR {before:.2} → {after:.2}");
     assert!(after > 17.0, "val PSNR {after:.2}");
     assert!(last.loss < 0.5 * first.loss);
-    let _ = std::fs::remove_dir_all(&dir);
+    finish(&ctx);
+}
+
+/// A capture whose photos differ in size (several cameras in one model): the views of
+/// a 32×32 and a 28×20 rendering of the demo scene, interleaved, train together, and
+/// `evaluate` scores each view at its own size (the mixed split's per-view PSNRs are
+/// those of the two single-size splits).
+#[test]
+fn frames_of_different_sizes_train_and_evaluate_together() {
+    let ctx = context();
+    let a_dir = demo_data("mixed-a", 32);
+    let b_dir = tempfile::Builder::new()
+        .prefix("svraster-train-mixed-b-")
+        .tempdir()
+        .unwrap();
+    demo::write_dataset(
+        b_dir.path(),
+        &demo::DemoOptions {
+            width: 28,
+            height: 20,
+            train: 40,
+            val: 6,
+            test: 1,
+            seed: 3,
+        },
+    )
+    .unwrap();
+    let load = |d: &TempDir, split: &str| data::load_split(d.path(), split, 1.0, [1.0; 3]).unwrap();
+    let mix = |a: &data::Dataset, b: &data::Dataset| -> data::Dataset {
+        let mut m = a.clone();
+        m.frames = a
+            .frames
+            .iter()
+            .zip(&b.frames)
+            .enumerate()
+            .map(|(i, (fa, fb))| if i % 2 == 0 { fa.clone() } else { fb.clone() })
+            .collect();
+        assert!(!m.uniform_size());
+        m
+    };
+    let (a_val, b_val) = (load(&a_dir, "val"), load(&b_dir, "val"));
+    let train = mix(&load(&a_dir, "train"), &load(&b_dir, "train"));
+    let val = mix(&a_val, &b_val);
+    let cfg = quick(200);
+    let init = uniform_grid(&cfg).unwrap();
+    let before = mean_psnr(&ctx, &init, &val);
+    let mut t = Trainer::new(&ctx, cfg.clone(), &train, Some(init)).unwrap();
+    for _ in 0..cfg.iters {
+        t.step(false).unwrap();
+    }
+    t.check_finite().unwrap();
+    let scene = t.scene().unwrap();
+    let eval = |ds: &data::Dataset| {
+        svraster::eval::evaluate(
+            &ctx,
+            &scene,
+            ds,
+            &svraster::raster::RenderOptions::default(),
+            |_, _, _, _, _| {},
+        )
+        .unwrap()
+    };
+    let (m, a, b) = (eval(&val), eval(&a_val), eval(&b_val));
+    println!(
+        "mixed val PSNR {before:.2} → {:.2} dB (32×32 views {:.2}, 28×20 views {:.2})",
+        m.psnr, a.psnr, b.psnr
+    );
+    assert!(
+        m.psnr > before + 6.0 && m.psnr > 17.0,
+        "val PSNR {before:.2} → {:.2}",
+        m.psnr
+    );
+    for (i, v) in m.per_view.iter().enumerate() {
+        let single = if i % 2 == 0 {
+            &a.per_view[i]
+        } else {
+            &b.per_view[i]
+        };
+        assert_eq!(v.0, single.0);
+        assert!(
+            (v.1 - single.1).abs() < 1e-9 && (v.2 - single.2).abs() < 1e-9,
+            "{v:?} vs {single:?}"
+        );
+    }
     finish(&ctx);
 }
 
@@ -148,7 +236,7 @@ fn training_smoke_test_on_the_demo_scene() {
 fn same_seed_same_model_up_to_atomic_order() {
     let ctx = context();
     let dir = demo_data("repro", 32);
-    let train = data::load_split(&dir, "train", 1.0, [1.0; 3]).unwrap();
+    let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
     let run = |seed: u64| -> Scene {
         let mut cfg = quick(25);
         cfg.grid_level = 4;
@@ -177,7 +265,6 @@ fn same_seed_same_model_up_to_atomic_order() {
         other > 100.0 * same.max(1e-6),
         "seeds should matter: {other}"
     );
-    let _ = std::fs::remove_dir_all(&dir);
     finish(&ctx);
 }
 
@@ -185,7 +272,7 @@ fn same_seed_same_model_up_to_atomic_order() {
 fn non_finite_values_stop_training_with_a_clear_error() {
     let ctx = context();
     let dir = demo_data("nan", 24);
-    let train = data::load_split(&dir, "train", 1.0, [1.0; 3]).unwrap();
+    let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
     let cfg = quick(5);
     let mut init = uniform_grid(&TrainConfig {
         grid_level: 3,
@@ -228,8 +315,7 @@ fn non_finite_values_stop_training_with_a_clear_error() {
         .err()
         .unwrap()
         .to_string();
-    assert!(e.contains("pixels, expected"), "{e}");
-    let _ = std::fs::remove_dir_all(&dir);
+    assert!(e.contains("pixels, but its camera is"), "{e}");
     finish(&ctx);
 }
 
@@ -237,7 +323,7 @@ fn non_finite_values_stop_training_with_a_clear_error() {
 fn a_grid_too_large_for_the_device_is_refused_before_it_is_built() {
     let ctx = context();
     let dir = demo_data("big", 16);
-    let train = data::load_split(&dir, "train", 1.0, [1.0; 3]).unwrap();
+    let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
     let mut cfg = quick(5);
     cfg.grid_level = 8; // 16.7 M voxels; degree-3 SH need 3.0 GB in one buffer
     let need = (1u64 << 24) * 15 * 12;
@@ -259,7 +345,6 @@ fn a_grid_too_large_for_the_device_is_refused_before_it_is_built() {
             "refused only after building the grid"
         );
     }
-    let _ = std::fs::remove_dir_all(&dir);
     finish(&ctx);
 }
 
@@ -272,11 +357,14 @@ fn training_views_pack_into_chunks() {
     use svraster::data::{Dataset, Frame};
     use svraster::train::views::TrainViews;
     let ctx = context();
-    let (w, h) = (7u32, 5u32);
-    let np = (w * h) as usize;
+    // Views of different sizes (a capture with several cameras): 35, 48, 45, 42 and 40
+    // pixels, 12 bytes each.
+    let sizes = [(7u32, 5u32), (8, 6), (9, 5), (7, 6), (8, 5)];
     let mut rng = common::Rng(11);
-    let frames: Vec<Frame> = (0..5)
-        .map(|k| Frame {
+    let frames: Vec<Frame> = sizes
+        .iter()
+        .enumerate()
+        .map(|(k, &(w, h))| Frame {
             name: format!("v{k}"),
             camera: svraster::data::Camera::look_at(
                 [0.0, -4.0, 0.0],
@@ -286,25 +374,27 @@ fn training_views_pack_into_chunks() {
                 w,
                 h,
             ),
-            rgb: (0..np)
+            rgb: (0..w * h)
                 .map(|_| std::array::from_fn(|_| rng.unit() as f32))
                 .collect(),
         })
         .collect();
     let data = Dataset {
         frames,
-        width: w,
-        height: h,
+        width: 8,
+        height: 6,
         background: [1.0; 3],
         split: "train".into(),
         points: Vec::new(),
     };
-    let view_bytes = (3 * np * 4) as u64;
-    for (chunk_bytes, want_chunks) in [(2 * view_bytes + 7, 3), (view_bytes / 2, 5), (1 << 30, 1)] {
+    // 1000 bytes: [420 + 576], [540] (+ 504 would be 1044), [504 + 480].
+    for (chunk_bytes, want_chunks) in [(1000, 3), (200, 5), (1 << 30, 1)] {
         let views = TrainViews::upload(&ctx, &data, chunk_bytes).unwrap();
         assert_eq!(views.len(), 5);
         assert_eq!(views.chunks(), want_chunks, "chunk limit {chunk_bytes}");
         for (k, f) in data.frames.iter().enumerate() {
+            let np = f.rgb.len();
+            let view_bytes = (3 * np * 4) as u64;
             let (buf, offset) = views.locate(k);
             assert!(offset + view_bytes <= buf.size());
             assert!(want_chunks == 5 || buf.size() <= chunk_bytes);
@@ -338,8 +428,8 @@ fn training_views_pack_into_chunks() {
 fn unbounded_training_is_invariant_to_the_world_frame() {
     let ctx = context();
     let dir = demo_data("world", 32);
-    let train = data::load_split(&dir, "train", 1.0, [0.0; 3]).unwrap();
-    let val = data::load_split(&dir, "val", 1.0, [0.0; 3]).unwrap();
+    let train = data::load_split(dir.path(), "train", 1.0, [0.0; 3]).unwrap();
+    let val = data::load_split(dir.path(), "val", 1.0, [0.0; 3]).unwrap();
     let moved = |ds: &data::Dataset, offset: f64, scale: f64| {
         let mut ds = ds.clone();
         for f in &mut ds.frames {
@@ -387,6 +477,5 @@ fn unbounded_training_is_invariant_to_the_world_frame() {
     );
     assert!((a.2 - b.2).abs() < 0.05, "{a:?} vs {b:?}");
     assert!(a.2 > 14.0, "{a:?}");
-    let _ = std::fs::remove_dir_all(&dir);
     finish(&ctx);
 }

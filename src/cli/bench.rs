@@ -39,7 +39,7 @@ pub enum BenchCmd {
     Render {
         /// A .safetensors checkpoint, or a run directory holding model.safetensors.
         model: std::path::PathBuf,
-        /// Blender-format dataset whose cameras are rendered.
+        /// Dataset whose cameras are rendered (any format `svraster train` reads).
         #[arg(long)]
         data: std::path::PathBuf,
         #[arg(long, default_value = "test", value_parser = ["train", "val", "test"])]
@@ -64,7 +64,7 @@ pub enum BenchCmd {
     },
     /// Training iterations on a dataset: median ms per iteration and per stage.
     Train {
-        /// Blender-format dataset (its train split).
+        /// Dataset (its train split; any format `svraster train` reads).
         data: std::path::PathBuf,
         #[arg(long, default_value_t = 1.0)]
         downscale: f64,

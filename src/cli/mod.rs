@@ -109,9 +109,10 @@ enum Command {
         #[arg(long)]
         voxelize: bool,
     },
-    /// Train a model on the train split of a Blender-format dataset.
+    /// Train a model on the train split of a dataset (Blender, COLMAP, nerfstudio or LLFF).
     Train {
-        /// Dataset directory (transforms_train.json + images).
+        /// Dataset directory: Blender (transforms_*.json), COLMAP (sparse/0 + images),
+        /// nerfstudio (transforms.json) or LLFF (poses_bounds.npy); see --format.
         data: PathBuf,
         /// Run directory: config.json, stats.jsonl, model.safetensors, optimizer.safetensors.
         #[arg(long)]
@@ -123,7 +124,9 @@ enum Command {
         /// with --resume).
         #[arg(long)]
         downscale: Option<f64>,
-        /// Configuration preset: synthetic (default) or quick (with --resume: the run's).
+        /// Configuration preset: synthetic, real, forward or quick (default: the data's —
+        /// Blender: synthetic, COLMAP/nerfstudio: real, LLFF: forward; with --resume: the
+        /// run's).
         #[arg(long)]
         preset: Option<String>,
         /// Random seed.

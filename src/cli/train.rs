@@ -216,6 +216,13 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
                 cfg.outside_level,
                 svraster::train::trainer::root_extent(&cfg)
             );
+            if a.preset.is_none() && preset == "real" && cfg.bound == "auto" && r.forward {
+                eprintln!(
+                    "note: every training camera looks the same way (a forward-facing \
+                     capture): --preset forward trains it with 2 background shell levels \
+                     instead of 5"
+                );
+            }
         }
     }
     train.to_model(&cfg.world());
@@ -261,13 +268,14 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     }
     eprintln!(
         "training {} voxels (level-{} grid, voxels no camera sees removed; layout {}, \
-         budget {} voxels) on {} views of {}×{} for {} iterations (density learning rate \
+         budget {} voxels) on {} views of {}{}×{} for {} iterations (density learning rate \
          {}) → {}",
         trainer.voxels(),
         cfg.grid_level,
         format!("{:?}", cfg.layout).to_lowercase(),
         trainer.budget(),
         train.frames.len(),
+        if train.uniform_size() { "" } else { "up to " },
         train.width,
         train.height,
         cfg.iters,
@@ -331,7 +339,7 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
             let line = serde_json::json!({
                 "iter": info.iter,
                 "loss": l.loss, "mse": l.mse, "psnr": l.psnr, "ssim": l.ssim,
-                "t_concentration": l.t_concentration, "distortion": l.distortion, "tv": l.tv,
+                "t_concentration": l.t_concentration, "t_inside": l.t_inside, "distortion": l.distortion, "tv": l.tv,
                 "sh_degree": info.sh_degree, "ss": info.supersample, "entries": info.entries,
                 "voxels": trainer.voxels(), "grid_points": trainer.grid_points(),
                 "device_memory": trainer.device_memory(), "elapsed_s": el,
@@ -384,8 +392,18 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
     save_run(run, trainer)?;
     curves(run);
     let secs = t0.elapsed().as_secs_f64();
+    let layout = if cfg.outside_level > 0 {
+        let main = trainer.scene()?.voxels_inside(cfg.center, cfg.extent);
+        format!(
+            "{} voxels: {main} in the main region, {} in the background shells",
+            trainer.voxels(),
+            trainer.voxels() as usize - main
+        )
+    } else {
+        format!("{} voxels", trainer.voxels())
+    };
     eprintln!(
-        "trained {} iterations in {} → {}",
+        "trained {} iterations in {} ({layout}) → {}",
         cfg.iters - first,
         fmt_duration(secs),
         run.join("model.safetensors").display()

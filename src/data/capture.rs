@@ -243,30 +243,19 @@ pub fn load_shots_from(
         .par_iter()
         .map(|s| load_frame(folder, s, opts.downscale))
         .collect::<Result<_>>()?;
-    let (width, height) = match frames.first() {
-        Some(f) => (f.camera.width, f.camera.height),
-        None => {
-            return Err(Error::Invalid(format!(
-                "{}: split `{split}` has no frames (holdout {})",
-                dir.display(),
-                opts.holdout
-            )))
-        }
-    };
-    if let Some(f) = frames
+    // Frames may differ in size (several cameras in one model); the dataset's size is
+    // the largest frame's, each frame's camera carries its own.
+    let Some((width, height)) = frames
         .iter()
-        .find(|f| (f.camera.width, f.camera.height) != (width, height))
-    {
+        .map(|f| (f.camera.width, f.camera.height))
+        .max_by_key(|&(w, h)| w as u64 * h as u64)
+    else {
         return Err(Error::Invalid(format!(
-            "{}: image {} is {}×{} but {} is {width}×{height}: frames of different sizes in one \
-             split are not supported yet (resize the photos to one size)",
-            folder.display(),
-            f.name,
-            f.camera.width,
-            f.camera.height,
-            frames[0].name
+            "{}: split `{split}` has no frames (holdout {})",
+            dir.display(),
+            opts.holdout
         )));
-    }
+    };
     Ok(Dataset {
         frames,
         width,

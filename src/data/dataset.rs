@@ -19,9 +19,10 @@ pub struct Frame {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Dataset {
     pub frames: Vec<Frame>,
-    /// Image width after downscaling.
+    /// Image width after downscaling (the largest frame's where a capture's frames
+    /// differ in size; each frame's camera has its own).
     pub width: u32,
-    /// Image height after downscaling.
+    /// Image height after downscaling (of the same frame as `width`).
     pub height: u32,
     /// Colour the images were composited over.
     pub background: [f32; 3],
@@ -33,6 +34,13 @@ pub struct Dataset {
 }
 
 impl Dataset {
+    /// Whether every frame has the size `width × height`.
+    pub fn uniform_size(&self) -> bool {
+        self.frames
+            .iter()
+            .all(|f| (f.camera.width, f.camera.height) == (self.width, self.height))
+    }
+
     /// Maps the cameras and points into a model's frame (a no-op for the identity).
     pub fn to_model(&mut self, world: &crate::scene::WorldFrame) {
         if world.is_identity() {

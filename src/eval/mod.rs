@@ -105,8 +105,8 @@ pub fn evaluate(
         let s = ssim::ssim(
             &clamp(&img.rgb),
             &clamp(&f.rgb),
-            ds.width as usize,
-            ds.height as usize,
+            f.camera.width as usize,
+            f.camera.height as usize,
         );
         progress(i + 1, ds.frames.len(), &f.name, p, s);
         per_view.push((f.name.clone(), p, s));

@@ -268,6 +268,19 @@ impl Scene {
         [m[0] + h, m[1] + h, m[2] + h]
     }
 
+    /// Number of voxels whose centre lies in the cube of edge `extent` around `center`
+    /// (with background shells, the main region's voxels: shell voxels never straddle
+    /// the main region, an octree node of the root).
+    pub fn voxels_inside(&self, center: [f32; 3], extent: f32) -> usize {
+        let h = 0.5 * extent as f64;
+        (0..self.num_voxels())
+            .filter(|&i| {
+                let c = self.voxel_center(i);
+                (0..3).all(|a| (c[a] - center[a] as f64).abs() < h)
+            })
+            .count()
+    }
+
     /// World position of integer finest-level coordinates.
     pub fn fine_to_world(&self, c: [u32; 3]) -> [f64; 3] {
         let unit = self.extent as f64 / GRID_MAX as f64;

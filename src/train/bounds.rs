@@ -61,6 +61,8 @@ pub struct MainRegion {
     pub center: [f64; 3],
     pub radius: f64,
     pub mode: &'static str,
+    /// Every camera looks into the same half-space (a forward-facing capture).
+    pub forward: bool,
 }
 
 /// The main region of `cams` (and the capture's sparse `points`, possibly none) under
@@ -77,15 +79,13 @@ pub fn main_region(cams: &[Camera], points: &[[f64; 3]], mode: &str) -> Result<M
         .iter()
         .map(|c| DVec3::from(c.rotate([0.0, 0.0, 1.0])).normalize())
         .collect();
+    let forward = look.iter().all(|a| look.iter().all(|b| a.dot(*b) > 0.0));
     let mode: &'static str = match mode {
-        "auto" => {
-            let forward = look.iter().all(|a| look.iter().all(|b| a.dot(*b) > 0.0));
-            match (forward, points.len() >= 8) {
-                (true, true) => "points",
-                (true, false) => "forward",
-                _ => "camera_median",
-            }
-        }
+        "auto" => match (forward, points.len() >= 8) {
+            (true, true) => "points",
+            (true, false) => "forward",
+            _ => "camera_median",
+        },
         "points" if points.len() < 8 => {
             return Err(Error::Invalid(format!(
                 "bound mode `points` needs the capture's sparse points; it has {}",
@@ -136,6 +136,7 @@ pub fn main_region(cams: &[Camera], points: &[[f64; 3]], mode: &str) -> Result<M
         center: center.to_array(),
         radius,
         mode,
+        forward,
     })
 }
 

@@ -1,8 +1,9 @@
-//! Pixel losses of a training frame (glsl/train/loss.comp): MSE on rgb and the
-//! transmittance concentration T²(1−T)² (T = 1 − alpha), written as gradients w.r.t.
-//! the frame's outputs into the backward's `dout` image (every channel, so SSIM can
-//! add to it next), plus per-workgroup partial sums of the squared error, the
-//! concentration term and the frame's per-pixel distortion values for logging.
+//! Pixel losses of a training frame (glsl/train/loss.comp): MSE on rgb, the
+//! transmittance concentration T²(1−T)² and the inside term T² (T = 1 − alpha, the
+//! transmittance left after the model's last voxel), written as gradients w.r.t. the
+//! frame's outputs into the backward's `dout` image (every channel, so SSIM can add to
+//! it next), plus per-workgroup partial sums of the squared error, the two
+//! transmittance terms and the frame's per-pixel distortion values for logging.
 
 use ash::vk;
 
@@ -23,8 +24,13 @@ struct LossPush {
     w_t: f32,
     nout: u32,
     nrender: u32,
+    w_tin: f32,
+    pad: u32,
 }
 push_constants!(LossPush, kernels::TRAIN_LOSS);
+
+/// Partial sums per workgroup: squared error, concentration, distortion, inside.
+const PARTIALS: usize = 4;
 
 /// Sums of the last recorded frame's pixel losses.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
@@ -35,8 +41,22 @@ pub struct LossSums {
     pub t_concentration: f64,
     /// Σ over render pixels of the distortion loss value.
     pub distortion: f64,
+    /// Σ over output pixels of T².
+    pub t_inside: f64,
     pub out_pixels: u32,
     pub render_pixels: u32,
+}
+
+/// Weights of the pixel losses (each term is a mean over the frame's pixels).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LossWeights {
+    /// λ of mean((rgb − gt)²) over 3·pixels.
+    pub mse: f32,
+    /// λ of mean(T²(1−T)²): transmittance pushed to 0 or 1 (objects on a background).
+    pub t_concentration: f32,
+    /// λ of mean(T²): every ray ends inside the model (the reference's
+    /// `lambda_T_inside`; unbounded scenes, whose shells hold the background).
+    pub t_inside: f32,
 }
 
 /// The pixel-loss kernel and its partial-sum buffer.
@@ -61,9 +81,7 @@ impl PixelLoss {
 
     /// Records the losses of `frame` (its output image at `out_img`, planar
     /// [`crate::raster::CHANNELS`]) against `gt` (planar rgb at output resolution) into
-    /// `dout`: with `lambda_mse`·mean((rgb − gt)²) over 3·pixels and
-    /// `lambda_t`·mean(T²(1−T)²) over pixels. Ends with a barrier.
-    #[allow(clippy::too_many_arguments)]
+    /// `dout` with the weights `w` ([`LossWeights`]). Ends with a barrier.
     pub fn record(
         &mut self,
         cmd: vk::CommandBuffer,
@@ -71,14 +89,13 @@ impl PixelLoss {
         out_img: u64,
         gt: u64,
         dout: u64,
-        lambda_mse: f32,
-        lambda_t: f32,
+        w: LossWeights,
     ) -> Result<()> {
         let nout = frame.out_width * frame.out_height;
         let nrender = frame.render_width * frame.render_height;
         let items = nout.max(nrender);
         let groups = self.kernel.groups_1d(items);
-        let need = groups as u64 * 3 * 4;
+        let need = groups as u64 * PARTIALS as u64 * 4;
         self.partials.ensure(&self.ctx, need)?;
         self.kernel.dispatch_1d(
             cmd,
@@ -88,10 +105,12 @@ impl PixelLoss {
                 gt,
                 dout,
                 partials: self.partials.address(),
-                w_mse: lambda_mse / (3.0 * nout as f32),
-                w_t: lambda_t / nout as f32,
+                w_mse: w.mse / (3.0 * nout as f32),
+                w_t: w.t_concentration / nout as f32,
                 nout,
                 nrender,
+                w_tin: w.t_inside / nout as f32,
+                pad: 0,
             },
             items,
         );
@@ -104,12 +123,14 @@ impl PixelLoss {
     /// The sums of the last recorded frame (after it completed).
     pub fn read(&self) -> Result<LossSums> {
         let parts: Vec<f32> = match self.partials.buffer() {
-            Some(b) if self.groups > 0 => self.ctx.download(b, 0, self.groups as usize * 3)?,
+            Some(b) if self.groups > 0 => {
+                self.ctx.download(b, 0, self.groups as usize * PARTIALS)?
+            }
             _ => Vec::new(),
         };
-        let mut s = [0f64; 3];
-        for g in parts.chunks_exact(3) {
-            for k in 0..3 {
+        let mut s = [0f64; PARTIALS];
+        for g in parts.chunks_exact(PARTIALS) {
+            for k in 0..PARTIALS {
                 s[k] += g[k] as f64;
             }
         }
@@ -117,6 +138,7 @@ impl PixelLoss {
             squared_error: s[0],
             t_concentration: s[1],
             distortion: s[2],
+            t_inside: s[3],
             out_pixels: self.pixels.0,
             render_pixels: self.pixels.1,
         })

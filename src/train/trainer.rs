@@ -18,7 +18,7 @@ use rand::Rng;
 use super::backward::{Backward, EntryLosses, Gradients};
 use super::config::{Schedule, TrainConfig};
 use super::init::Moments;
-use super::loss::PixelLoss;
+use super::loss::{LossWeights, PixelLoss};
 use super::optim::{Adam, AdamConfig, Tv};
 use super::ssim::Ssim;
 use super::views::TrainViews;
@@ -42,6 +42,8 @@ pub struct StepLosses {
     pub psnr: f64,
     pub ssim: f64,
     pub t_concentration: f64,
+    /// mean(T²) (the inside term).
+    pub t_inside: f64,
     pub distortion: f64,
     pub tv: f64,
 }
@@ -202,10 +204,10 @@ impl Trainer {
         };
         let frame = self.renderer.last_frame()?;
         self.backward.prepare(&frame, self.scene.voxels)?;
-        if (frame.out_width, frame.out_height) != (self.width, self.height) {
+        if (frame.out_width, frame.out_height) != (cam.width, cam.height) {
             return Err(Error::Invalid(format!(
-                "frame rendered at {}×{}, but the training views are {}×{}",
-                frame.out_width, frame.out_height, self.width, self.height
+                "frame rendered at {}×{}, but training view {view} is {}×{}",
+                frame.out_width, frame.out_height, cam.width, cam.height
             )));
         }
         let nrender = frame.render_width * frame.render_height;
@@ -241,8 +243,11 @@ impl Trainer {
                 out_addr,
                 gt_addr,
                 dout_addr,
-                cfg.lambda_mse,
-                cfg.lambda_t,
+                LossWeights {
+                    mse: cfg.lambda_mse,
+                    t_concentration: cfg.lambda_t,
+                    t_inside: cfg.lambda_t_inside,
+                },
             )?;
             if cfg.lambda_ssim > 0.0 {
                 self.ssim.record(
@@ -386,6 +391,7 @@ impl Trainer {
         let sums = self.loss.read()?;
         let mse = sums.squared_error / (3.0 * sums.out_pixels as f64);
         let tconc = sums.t_concentration / sums.out_pixels as f64;
+        let tin = sums.t_inside / sums.out_pixels as f64;
         let dist = sums.distortion / sums.render_pixels as f64;
         let ssim = if cfg.lambda_ssim > 0.0 {
             self.ssim.read_value()?
@@ -402,6 +408,7 @@ impl Trainer {
         let loss = cfg.lambda_mse as f64 * mse
             + cfg.lambda_ssim as f64 * ssim_term
             + cfg.lambda_t as f64 * tconc
+            + cfg.lambda_t_inside as f64 * tin
             + lambda_dist as f64 * dist
             + lambda_tv as f64 * tv;
         Ok(StepLosses {
@@ -410,6 +417,7 @@ impl Trainer {
             psnr: -10.0 * mse.max(1e-20).log10(),
             ssim,
             t_concentration: tconc,
+            t_inside: tin,
             distortion: dist,
             tv,
         })
@@ -476,7 +484,7 @@ impl Trainer {
         ]
     }
 
-    /// Training image size.
+    /// Training image size (the largest view's where they differ).
     pub fn image_size(&self) -> (u32, u32) {
         (self.width, self.height)
     }

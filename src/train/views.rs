@@ -28,37 +28,53 @@ impl TrainViews {
         MAX_CHUNK_BYTES.min(ctx.info().max_memory_allocation_size)
     }
 
-    /// Uploads every frame of `data` (each `data.width × data.height` pixels), packing
-    /// whole views into chunks of at most `chunk_bytes` (a view larger than that gets a
-    /// chunk of its own).
+    /// Uploads every frame of `data` (each at its camera's size), packing whole views
+    /// into chunks of at most `chunk_bytes` (a view larger than that gets a chunk of its
+    /// own).
     pub fn upload(ctx: &Context, data: &Dataset, chunk_bytes: u64) -> Result<TrainViews> {
-        let np = data.width as usize * data.height as usize;
+        let mut sizes = Vec::with_capacity(data.frames.len());
         for f in &data.frames {
-            if f.rgb.len() != np {
+            let np = f.camera.width as usize * f.camera.height as usize;
+            if f.rgb.len() != np || np == 0 {
                 return Err(Error::Invalid(format!(
-                    "training image {} has {} pixels, expected {}×{}",
+                    "training image {} has {} pixels, but its camera is {}×{}",
                     f.name,
                     f.rgb.len(),
-                    data.width,
-                    data.height
+                    f.camera.width,
+                    f.camera.height
                 )));
             }
+            sizes.push(np);
         }
-        let view_bytes = (3 * np * 4) as u64;
-        let per_chunk = (chunk_bytes / view_bytes.max(1)).max(1) as usize;
+        let total: u64 = sizes.iter().map(|&np| (3 * np * 4) as u64).sum();
         let mut views = TrainViews {
             chunks: Vec::new(),
             slots: Vec::with_capacity(data.frames.len()),
         };
-        for (c, frames) in data.frames.chunks(per_chunk).enumerate() {
-            let mut planar = vec![0f32; frames.len() * 3 * np];
-            for (i, f) in frames.iter().enumerate() {
+        let mut start = 0;
+        while start < data.frames.len() {
+            // Whole views, in order, up to `chunk_bytes` (at least one).
+            let mut end = start;
+            let mut bytes = 0u64;
+            while end < data.frames.len() {
+                let b = (3 * sizes[end] * 4) as u64;
+                if end > start && bytes + b > chunk_bytes {
+                    break;
+                }
+                bytes += b;
+                end += 1;
+            }
+            let c = views.chunks.len();
+            let mut planar = vec![0f32; (bytes / 4) as usize];
+            let mut offset = 0usize;
+            for (f, &np) in data.frames[start..end].iter().zip(&sizes[start..end]) {
                 for (p, rgb) in f.rgb.iter().enumerate() {
                     for ch in 0..3 {
-                        planar[(i * 3 + ch) * np + p] = rgb[ch];
+                        planar[offset + ch * np + p] = rgb[ch];
                     }
                 }
-                views.slots.push((c, i as u64 * view_bytes));
+                views.slots.push((c, offset as u64 * 4));
+                offset += 3 * np;
             }
             let name = format!("train.views[{c}]");
             let buf = ctx.buffer_from(&name, &planar).map_err(|e| match e {
@@ -66,11 +82,12 @@ impl TrainViews {
                     "the {} training views ({:.1} GiB as f32) do not fit in device memory \
                      ({e}); train at a lower resolution (--downscale) or on fewer views",
                     data.frames.len(),
-                    (view_bytes * data.frames.len() as u64) as f64 / (1u64 << 30) as f64
+                    total as f64 / (1u64 << 30) as f64
                 )),
                 e => e,
             })?;
             views.chunks.push(buf);
+            start = end;
         }
         Ok(views)
     }
