@@ -66,6 +66,10 @@ fn demo_then_render_and_bench() {
             .path()
             .join(format!("renders/r_{i}_depth.png"))
             .is_file());
+        assert!(dir
+            .path()
+            .join(format!("renders/r_{i}_compare.png"))
+            .is_file());
     }
     // Metric depth: 16-bit counts × the sidecar's scale are camera depths inside the
     // sidecar's range (0: no surface); the normal map is black where there is no surface.
@@ -115,6 +119,7 @@ fn demo_then_render_and_bench() {
         "--out",
         r.to_str().unwrap(),
         "--normal",
+        "--compare",
         "--ss",
         "1.5",
     ]);
@@ -124,6 +129,28 @@ fn demo_then_render_and_bench() {
         .to_rgb8();
     assert_eq!(img.dimensions(), (16, 16));
     assert!(r.join("r_0_normal.png").is_file());
+    // --compare: the photo (as the split loads it) on the left, the render on the right.
+    let both = image::open(r.join("r_0_compare.png")).unwrap().to_rgb8();
+    assert_eq!(both.dimensions(), (32, 16));
+    let val = svraster::data::load_split(&dir.path().join("data"), "val", 2.0, [1.0; 3]).unwrap();
+    for y in 0..16u32 {
+        for x in 0..16u32 {
+            assert_eq!(
+                both.get_pixel(x + 16, y),
+                img.get_pixel(x, y),
+                "render ({x},{y})"
+            );
+            let photo = val.frames[0].rgb[(y * 16 + x) as usize];
+            let got = both.get_pixel(x, y).0;
+            for c in 0..3 {
+                let want = (photo[c].clamp(0.0, 1.0) * 255.0).round();
+                assert!(
+                    (f32::from(got[c]) - want).abs() <= 1.0,
+                    "photo ({x},{y}) {c}"
+                );
+            }
+        }
+    }
 
     // Two frames with one file stem get distinct outputs (none overwrites the other).
     let tj = dir.path().join("data/transforms_val.json");

@@ -86,7 +86,8 @@ enum Command {
         json: bool,
     },
     /// Generate the built-in procedural scene (Blender-format dataset), train on it,
-    /// evaluate the test views and render them (rgb, depth, normal PNGs).
+    /// evaluate the test views and render them (rgb, depth, normal and photo-beside-render
+    /// PNGs).
     Demo {
         /// Output directory: dataset in OUT/data, the run in OUT/run, renders in OUT/renders.
         #[arg(long, default_value = "demo_out")]
@@ -195,6 +196,9 @@ enum Command {
         /// Also write NAME_normal.png.
         #[arg(long)]
         normal: bool,
+        /// Also write NAME_compare.png: the photo (left) beside the render (right).
+        #[arg(long)]
+        compare: bool,
         /// Samples per ray-voxel segment (1..=3).
         #[arg(long, default_value_t = 1)]
         samples: u32,
@@ -302,6 +306,7 @@ pub fn run() -> anyhow::Result<()> {
             out,
             depth,
             normal,
+            compare,
             samples,
             ss,
             source,
@@ -316,6 +321,7 @@ pub fn run() -> anyhow::Result<()> {
                 out,
                 depth,
                 normal,
+                compare,
                 samples,
                 ss,
             },

@@ -179,6 +179,8 @@ pub struct RenderArgs {
     pub out: PathBuf,
     pub depth: bool,
     pub normal: bool,
+    /// Also write `NAME_compare.png`: the photo beside the render.
+    pub compare: bool,
     /// Samples per ray–voxel segment.
     pub samples: u32,
     /// Supersampling (None: the model's, [`svraster::scene::Scene::supersample`]).
@@ -217,6 +219,23 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
         let p = svraster::eval::psnr(&img.rgb, &f.rgb);
         total_psnr += p;
         write_image(&a.out, &names[i], &img, a.depth, a.normal, &scene.world)?;
+        if a.compare {
+            let (w, h) = (img.width as usize, img.height as usize);
+            let both: Vec<[f32; 3]> = (0..h)
+                .flat_map(|y| {
+                    f.rgb[y * w..(y + 1) * w]
+                        .iter()
+                        .chain(&img.rgb[y * w..(y + 1) * w])
+                        .copied()
+                })
+                .collect();
+            image::save_rgb_png(
+                &a.out.join(format!("{}_compare.png", names[i])),
+                2 * img.width,
+                img.height,
+                &both,
+            )?;
+        }
         progress.update(i as u64 + 1, || format!("{}: PSNR {p:.2} dB", f.name));
     }
     progress.finish();

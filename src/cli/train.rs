@@ -609,6 +609,7 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
             out: renders.clone(),
             depth: true,
             normal: true,
+            compare: true,
             samples: 1,
             ss: None,
         },
