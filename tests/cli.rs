@@ -1066,6 +1066,31 @@ fn colmap_capture_train_eval_with_data_options() {
         serde_json::from_str(&std::fs::read_to_string(run.path().join("config.json")).unwrap())
             .unwrap();
     assert_eq!(cfg["preset"], "real");
+    // The real preset's background: the mean colour of the 12 training photos (every
+    // 4th of the 16 held out), saved in config.json and in the model.
+    let mut sum = [0f64; 3];
+    let mut n = 0;
+    for k in (0..16).filter(|k| k % 4 != 0) {
+        let png = image::open(dir.path().join(format!("images_2/shot_{k}.png")))
+            .unwrap()
+            .to_rgb8();
+        for p in png.pixels() {
+            for (s, v) in sum.iter_mut().zip(p.0) {
+                *s += f64::from(v) / 255.0;
+            }
+            n += 1;
+        }
+    }
+    for c in 0..3 {
+        let want = sum[c] / n as f64;
+        let got = cfg["config"]["background"][c].as_f64().unwrap();
+        assert!((got - want).abs() < 1e-5, "background[{c}] {got} vs {want}");
+        assert!((f64::from(model.background[c]) - want).abs() < 1e-5);
+    }
+    assert!(
+        err.contains("background colour: the training photos' mean ["),
+        "{err}"
+    );
     assert_eq!(cfg["source"]["images"], "images_2");
     assert_eq!(cfg["source"]["holdout"], 4);
     // eval reuses the run's data options: 4 held-out views (0, 4, 8, 12).

@@ -374,8 +374,10 @@ fn bench_train(
     for kv in set {
         cfg.set(kv)?;
     }
-    let train = svraster::data::load_split(data, "train", downscale, cfg.background)?;
+    let mut train = svraster::data::load_split(data, "train", downscale, cfg.background)?;
     cfg.background = train.background;
+    // As a new run of `svraster train`: a capture's background and world frame.
+    svraster::train::bounds::resolve_run(&mut cfg, &mut train)?;
     // Time the full-model regime: SH at its final degree, supersampling on, all losses
     // (the distortion loss, off by default, at the paper's weight unless --set).
     if !set

@@ -202,7 +202,14 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     }
     let mut train = train;
     if init.is_none() {
-        if let Some(r) = svraster::train::bounds::resolve_world(&mut cfg, &train)? {
+        let region = svraster::train::bounds::resolve_run(&mut cfg, &mut train)?;
+        if cfg.background_from_photos {
+            eprintln!(
+                "background colour: the training photos' mean [{:.3}, {:.3}, {:.3}]",
+                cfg.background[0], cfg.background[1], cfg.background[2]
+            );
+        }
+        if let Some(r) = region {
             eprintln!(
                 "main region ({} from the {} training cameras): centre [{:.4}, {:.4}, {:.4}], \
                  edge {:.4} (world units); trained in its frame (edge 2), with {} background \
@@ -224,8 +231,9 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
                 );
             }
         }
+    } else {
+        train.to_model(&cfg.world());
     }
-    train.to_model(&cfg.world());
     if init.is_none() {
         eprintln!(
             "initialising: a level-{} grid ({} voxels), keeping those the {} training views \

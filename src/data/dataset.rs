@@ -34,6 +34,21 @@ pub struct Dataset {
 }
 
 impl Dataset {
+    /// Mean colour of every pixel of every frame (f64 sums; black for no pixels).
+    pub fn mean_color(&self) -> [f32; 3] {
+        let mut sum = [0f64; 3];
+        let mut n = 0usize;
+        for f in &self.frames {
+            for p in &f.rgb {
+                for c in 0..3 {
+                    sum[c] += f64::from(p[c]);
+                }
+            }
+            n += f.rgb.len();
+        }
+        sum.map(|v| if n > 0 { (v / n as f64) as f32 } else { 0.0 })
+    }
+
     /// Whether every frame has the size `width × height`.
     pub fn uniform_size(&self) -> bool {
         self.frames

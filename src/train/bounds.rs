@@ -55,6 +55,21 @@ pub fn resolve_world(
     Ok(Some(r))
 }
 
+/// Resolves what a new run takes from its training data — the background colour (with
+/// `background_from_photos`) and the world frame ([`resolve_world`]) — and maps `train`
+/// into the model's frame. Returns the main region found (None for a "box" bound).
+pub fn resolve_run(
+    cfg: &mut super::config::TrainConfig,
+    train: &mut crate::data::Dataset,
+) -> Result<Option<MainRegion>> {
+    if cfg.background_from_photos {
+        cfg.background = train.mean_color();
+    }
+    let r = resolve_world(cfg, train)?;
+    train.to_model(&cfg.world());
+    Ok(r)
+}
+
 /// A main region: centre, half edge, and the mode that produced it (`auto` resolved).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MainRegion {

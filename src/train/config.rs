@@ -41,8 +41,13 @@ pub struct TrainConfig {
     /// [-1, 1]³ (`center` 0, `extent` 2); identity for a "box" bound.
     pub world_center: [f64; 3],
     pub world_scale: f64,
-    /// Background composited behind the voxels (the dataset's).
+    /// Background composited behind the voxels (the dataset's; with
+    /// `background_from_photos`, resolved when the run starts and saved here).
     pub background: [f32; 3],
+    /// The background is the mean colour of the training photos (paper §3.2.1's
+    /// "average frame color" coming from infinity; the real and forward presets): a
+    /// ray that leaves the model unabsorbed sees the scene's average colour, not black.
+    pub background_from_photos: bool,
     /// Final SH degree, raised by one every `sh_every` of the run from 0.
     pub sh_degree: u32,
     pub sh_every: f64,
@@ -147,6 +152,7 @@ impl Default for TrainConfig {
             world_center: [0.0; 3],
             world_scale: 1.0,
             background: [1.0; 3],
+            background_from_photos: false,
             sh_degree: 3,
             sh_every: 0.05,
             geo_init: -10.0,
@@ -211,7 +217,8 @@ pub const PRESETS: &[(&str, &str)] = &[
         "real",
         "real captures, unbounded (Mip-NeRF 360-like; the default for COLMAP data): main \
          region from the cameras, 5 background shell levels holding twice the main \
-         region's voxels, black background, distortion loss 0.1 from half the run, no \
+         region's voxels, the photos' mean colour behind them, distortion loss 0.1 from \
+         half the run, no \
          transmittance-concentration loss, inside loss mean(T²) 0.01",
     ),
     (
@@ -270,6 +277,7 @@ impl TrainConfig {
                 c.bound = "auto".into();
                 c.outside_level = if name == "real" { 5 } else { 2 };
                 c.background = [0.0; 3];
+                c.background_from_photos = true;
                 c.lambda_dist = 0.1;
                 // The reference's Mip-NeRF 360 configuration: no transmittance
                 // concentration (an object-on-background prior; the shells fill the
