@@ -449,11 +449,10 @@ fn unbounded_training_is_invariant_to_the_world_frame() {
         cfg.grid_level = 4;
         cfg.outside_level = 2;
         cfg.ss = 1.0;
-        let region = svraster::train::bounds::resolve_world(&mut cfg, &t)
+        let region = svraster::train::bounds::resolve_run(&mut cfg, &mut t)
             .unwrap()
             .unwrap();
         assert_eq!(region.mode, "camera_median");
-        t.to_model(&cfg.world());
         let mut tr = Trainer::new(&ctx, cfg.clone(), &t, None).unwrap();
         for i in 0..cfg.iters {
             tr.step(i + 1 == cfg.iters).unwrap();
