@@ -225,8 +225,8 @@ pub const PRESETS: &[(&str, &str)] = &[
         "forward",
         "real forward-facing captures (the default for LLFF data): the real preset with 2 \
          background shell levels instead of 5 (nothing behind the cameras is seen, and the \
-         sparse points or LLFF depth bounds already reach the far background) and no \
-         inside loss",
+         sparse points or LLFF depth bounds already reach the far background), a black \
+         background and no inside loss",
     ),
     (
         "quick",
@@ -277,7 +277,6 @@ impl TrainConfig {
                 c.bound = "auto".into();
                 c.outside_level = if name == "real" { 5 } else { 2 };
                 c.background = [0.0; 3];
-                c.background_from_photos = true;
                 c.lambda_dist = 0.1;
                 // The reference's Mip-NeRF 360 configuration: no transmittance
                 // concentration (an object-on-background prior; the shells fill the
@@ -285,8 +284,13 @@ impl TrainConfig {
                 c.lambda_t = 0.0;
                 // Every ray ends inside the model (its shells hold the background);
                 // the reference sets it for Mip-NeRF 360 only, and so do we.
+                // Behind the model, the photos' mean colour (the paper's unbounded
+                // setting). Not for forward-facing captures: on llff_flower (126×95,
+                // 1 000 iterations) it cost 0.57 dB against black (24.96 vs 25.52 dB,
+                // 41 486 vs 28 584 voxels: dark shadows must be filled with voxels).
                 if name == "real" {
                     c.lambda_t_inside = 0.01;
+                    c.background_from_photos = true;
                 }
             }
             "quick" => {
