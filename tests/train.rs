@@ -384,6 +384,7 @@ fn training_views_pack_into_chunks() {
         width: 8,
         height: 6,
         background: [1.0; 3],
+        alpha: true,
         split: "train".into(),
         points: Vec::new(),
     };
@@ -440,6 +441,20 @@ fn unbounded_training_is_invariant_to_the_world_frame() {
         }
         ds
     };
+    // The real preset's background from the photos needs opaque photos: the demo's
+    // carry alpha (composited over black) and are refused; a colour given turns it off.
+    let mut cfg = TrainConfig::preset("real").unwrap();
+    let e = svraster::train::bounds::resolve_run(&mut cfg, &mut train.clone())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("carry alpha") && e.contains("background=[r,g,b]"),
+        "{e}"
+    );
+    cfg.set("background=[0.1,0.2,0.3]").unwrap();
+    assert!(!cfg.background_from_photos);
+    svraster::train::bounds::resolve_run(&mut cfg, &mut train.clone()).unwrap();
+    assert_eq!(cfg.background, [0.1, 0.2, 0.3]);
     let mut results = Vec::new();
     for (offset, scale) in [(0.0, 1.0), (1.0e4, 1.0e-3)] {
         let mut t = moved(&train, offset, scale);
@@ -449,6 +464,8 @@ fn unbounded_training_is_invariant_to_the_world_frame() {
         cfg.grid_level = 4;
         cfg.outside_level = 2;
         cfg.ss = 1.0;
+        // The demo's RGBA photos are composited over black: the model's background.
+        cfg.set("background=[0,0,0]").unwrap();
         let region = svraster::train::bounds::resolve_run(&mut cfg, &mut t)
             .unwrap()
             .unwrap();

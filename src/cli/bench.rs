@@ -68,9 +68,10 @@ pub enum BenchCmd {
         data: std::path::PathBuf,
         #[arg(long, default_value_t = 1.0)]
         downscale: f64,
-        /// Configuration preset (see `svraster train`).
-        #[arg(long, default_value = "synthetic")]
-        preset: String,
+        /// Configuration preset (see `svraster train`; default: the data format's, as
+        /// for `svraster train`).
+        #[arg(long)]
+        preset: Option<String>,
         /// Config overrides, as for `svraster train`.
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
@@ -166,7 +167,12 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             iters,
             warmup,
             json,
-        } => bench_train(ctx, &data, downscale, &preset, &set, iters, warmup, json),
+        } => {
+            let preset = preset.unwrap_or_else(|| {
+                super::train::format_preset(svraster::data::detect_format(&data)).into()
+            });
+            bench_train(ctx, &data, downscale, &preset, &set, iters, warmup, json)
+        }
         BenchCmd::Trade {
             data,
             out,

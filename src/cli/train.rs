@@ -39,17 +39,22 @@ pub struct TrainArgs {
 /// (Blender → synthetic, COLMAP → real).
 pub fn default_preset(a: &TrainArgs) -> String {
     a.preset.clone().unwrap_or_else(|| {
-        match a
-            .source
-            .format
-            .unwrap_or_else(|| data::detect_format(&a.data))
-        {
-            data::Format::Blender => "synthetic",
-            data::Format::Colmap | data::Format::Nerfstudio => "real",
-            data::Format::Llff => "forward",
-        }
+        format_preset(
+            a.source
+                .format
+                .unwrap_or_else(|| data::detect_format(&a.data)),
+        )
         .into()
     })
+}
+
+/// The preset a data format calls for.
+pub fn format_preset(format: data::Format) -> &'static str {
+    match format {
+        data::Format::Blender => "synthetic",
+        data::Format::Colmap | data::Format::Nerfstudio => "real",
+        data::Format::Llff => "forward",
+    }
 }
 
 /// Resolves the configuration of a new run.
@@ -227,7 +232,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
                 eprintln!(
                     "note: every training camera looks the same way (a forward-facing \
                      capture): --preset forward trains it with 2 background shell levels \
-                     instead of 5"
+                     instead of 5, black behind them and no inside loss"
                 );
             }
         }
@@ -284,8 +289,18 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         trainer.budget(),
         train.frames.len(),
         if train.uniform_size() { "" } else { "up to " },
-        train.width,
-        train.height,
+        train
+            .frames
+            .iter()
+            .map(|f| f.camera.width)
+            .max()
+            .unwrap_or(0),
+        train
+            .frames
+            .iter()
+            .map(|f| f.camera.height)
+            .max()
+            .unwrap_or(0),
         cfg.iters,
         trainer.schedule().lr_geo,
         run.display()

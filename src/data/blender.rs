@@ -146,6 +146,7 @@ pub fn load_split(
         width,
         height,
         background,
+        alpha: true,
         split: split.to_string(),
         points: Vec::new(),
     })

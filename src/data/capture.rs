@@ -261,6 +261,7 @@ pub fn load_shots_from(
         width,
         height,
         background: [0.0; 3],
+        alpha: false,
         split: split.into(),
         points: Vec::new(),
     })

@@ -15,7 +15,8 @@ pub struct Frame {
     pub rgb: Vec<[f32; 3]>,
 }
 
-/// The frames of one split, all of one image size.
+/// The frames of one split (of one size, or of several in a capture with several
+/// cameras).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Dataset {
     pub frames: Vec<Frame>,
@@ -26,6 +27,9 @@ pub struct Dataset {
     pub height: u32,
     /// Colour the images were composited over.
     pub background: [f32; 3],
+    /// Whether the photos carry alpha (Blender RGBA) and `rgb` is composited over
+    /// `background`; captures' photos are opaque.
+    pub alpha: bool,
     /// Split name (`train`, `val`, `test`, ...).
     pub split: String,
     /// The capture's sparse 3-D points in world coordinates (COLMAP `points3D`; empty

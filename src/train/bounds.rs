@@ -63,6 +63,14 @@ pub fn resolve_run(
     train: &mut crate::data::Dataset,
 ) -> Result<Option<MainRegion>> {
     if cfg.background_from_photos {
+        if train.alpha {
+            return Err(Error::Invalid(format!(
+                "background_from_photos takes the mean colour of opaque photos (a capture); \
+                 the {} photos carry alpha and are composited over the background: set \
+                 background=[r,g,b] instead (or background_from_photos=false)",
+                train.split
+            )));
+        }
         cfg.background = train.mean_color();
     }
     let r = resolve_world(cfg, train)?;

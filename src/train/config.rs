@@ -47,6 +47,7 @@ pub struct TrainConfig {
     /// The background is the mean colour of the training photos (paper §3.2.1's
     /// "average frame color" coming from infinity; the real and forward presets): a
     /// ray that leaves the model unabsorbed sees the scene's average colour, not black.
+    /// Setting `background` turns it off; photos with alpha (Blender) refuse it.
     pub background_from_photos: bool,
     /// Final SH degree, raised by one every `sh_every` of the run from 0.
     pub sh_degree: u32,
@@ -337,6 +338,10 @@ impl TrainConfig {
         map.insert(k.to_string(), val);
         *self =
             serde_json::from_value(obj).map_err(|e| Error::Invalid(format!("--set {kv}: {e}")))?;
+        // A colour given is the colour used (not replaced by the photos' mean).
+        if k == "background" {
+            self.background_from_photos = false;
+        }
         Ok(())
     }
 
