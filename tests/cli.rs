@@ -395,6 +395,8 @@ fn train_interrupt_resume_eval_and_bench() {
     assert!(ok, "bench train failed: {out}\n{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).expect("bench JSON");
     assert!(v["median_ms_per_iter"].as_f64().unwrap() > 0.0);
+    // The full-model regime: the timed iterations used the final SH degree.
+    assert_eq!(v["sh_degree"], 3, "{v}");
     for s in [
         "preprocess",
         "sort",

@@ -70,6 +70,10 @@ fn schedule_is_fractions_of_the_run() {
     );
     let e = c.set("grid_level=seven").unwrap_err().to_string();
     assert!(e.contains("grid_level"), "{e}");
+    // sh_every = 0: the final degree from the first iteration (bench train's regime).
+    c.set("sh_every=0").unwrap();
+    assert_eq!(c.schedule().sh_degree_up, vec![0, 0, 0]);
+    assert_eq!(c.schedule().sh_degree(0), 3);
     c.set("sh_every=1.5").unwrap();
     assert!(c.validate().unwrap_err().to_string().contains("sh_every"));
     assert!(TrainConfig::preset("nope").is_err());

@@ -49,7 +49,8 @@ pub struct TrainConfig {
     /// ray that leaves the model unabsorbed sees the scene's average colour, not black.
     /// Setting `background` turns it off; photos with alpha (Blender) refuse it.
     pub background_from_photos: bool,
-    /// Final SH degree, raised by one every `sh_every` of the run from 0.
+    /// Final SH degree, raised by one every `sh_every` of the run from 0 (0: the final
+    /// degree from the first iteration, as the reference's `sh_degree_init = 3`).
     pub sh_degree: u32,
     pub sh_every: f64,
     /// Initial raw density and colour (colour 0.5 = zero DC coefficient).
@@ -450,10 +451,10 @@ impl TrainConfig {
     pub fn schedule(&self) -> Schedule {
         let n = self.iters;
         let mut sh = Vec::new();
-        if self.sh_every > 0.0 {
-            for d in 1..=self.sh_degree {
-                sh.push(at(self.sh_every * d as f64, n));
-            }
+        // sh_every = 0: every degree from the first iteration (the reference's
+        // sh_degree_init = 3).
+        for d in 1..=self.sh_degree {
+            sh.push(at(self.sh_every * d as f64, n));
         }
         let mut checkpoints = Vec::new();
         if self.checkpoint_every > 0.0 {
