@@ -212,6 +212,8 @@ fn frames_of_different_sizes_train_and_evaluate_together() {
         .unwrap()
     };
     let (m, a, b) = (eval(&val), eval(&a_val), eval(&b_val));
+    assert!(m.sizes_differ && !a.sizes_differ && !b.sizes_differ);
+    assert_eq!((m.width, m.height), (32, 32));
     println!(
         "mixed val PSNR {before:.2} → {:.2} dB (32×32 views {:.2}, 28×20 views {:.2})",
         m.psnr, a.psnr, b.psnr

@@ -497,8 +497,15 @@ pub fn run_eval(
         println!("{}", serde_json::to_string(&rep)?);
     } else {
         println!(
-            "{} views of `{split}` at {}×{} (supersampling {}): PSNR {:.2} dB, SSIM {:.4}, {:.1} ms per frame (median, render only)",
-            rep.views, rep.width, rep.height, opts.supersample, rep.psnr, rep.ssim, rep.ms_per_frame
+            "{} views of `{split}` at {}{}×{} (supersampling {}): PSNR {:.2} dB, SSIM {:.4}, {:.1} ms per frame (median, render only)",
+            rep.views,
+            if rep.sizes_differ { "up to " } else { "" },
+            rep.width,
+            rep.height,
+            opts.supersample,
+            rep.psnr,
+            rep.ssim,
+            rep.ms_per_frame
         );
     }
     Ok(())

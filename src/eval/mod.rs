@@ -62,8 +62,11 @@ pub struct EvalReport {
     /// Median render time per frame (render only, after a warm-up frame).
     pub ms_per_frame: f64,
     pub split: String,
+    /// Largest frame width and height (the frames' own where `sizes_differ`).
     pub width: u32,
     pub height: u32,
+    /// Whether the frames differ in size (a capture with several cameras).
+    pub sizes_differ: bool,
     pub voxels: usize,
     /// The supersampling the views were rendered with.
     pub supersample: f32,
@@ -118,8 +121,9 @@ pub fn evaluate(
         views: per_view.len(),
         ms_per_frame: median(&times),
         split: ds.split.clone(),
-        width: ds.width,
-        height: ds.height,
+        width: ds.frames.iter().map(|f| f.camera.width).max().unwrap_or(0),
+        height: ds.frames.iter().map(|f| f.camera.height).max().unwrap_or(0),
+        sizes_differ: !ds.uniform_size(),
         voxels: scene.num_voxels(),
         supersample: opts.supersample,
         per_view,
