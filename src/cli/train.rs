@@ -289,18 +289,8 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         trainer.budget(),
         train.frames.len(),
         if train.uniform_size() { "" } else { "up to " },
-        train
-            .frames
-            .iter()
-            .map(|f| f.camera.width)
-            .max()
-            .unwrap_or(0),
-        train
-            .frames
-            .iter()
-            .map(|f| f.camera.height)
-            .max()
-            .unwrap_or(0),
+        train.width,
+        train.height,
         cfg.iters,
         trainer.schedule().lr_geo,
         run.display()

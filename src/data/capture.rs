@@ -244,12 +244,11 @@ pub fn load_shots_from(
         .map(|s| load_frame(folder, s, opts.downscale))
         .collect::<Result<_>>()?;
     // Frames may differ in size (several cameras in one model); the dataset's size is
-    // the largest frame's, each frame's camera carries its own.
-    let Some((width, height)) = frames
-        .iter()
-        .map(|f| (f.camera.width, f.camera.height))
-        .max_by_key(|&(w, h)| w as u64 * h as u64)
-    else {
+    // the largest width and height, each frame's camera carries its own.
+    let (Some(width), Some(height)) = (
+        frames.iter().map(|f| f.camera.width).max(),
+        frames.iter().map(|f| f.camera.height).max(),
+    ) else {
         return Err(Error::Invalid(format!(
             "{}: split `{split}` has no frames (holdout {})",
             dir.display(),

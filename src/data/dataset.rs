@@ -20,10 +20,10 @@ pub struct Frame {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Dataset {
     pub frames: Vec<Frame>,
-    /// Image width after downscaling (the largest frame's where a capture's frames
-    /// differ in size; each frame's camera has its own).
+    /// Image width after downscaling (the largest where a capture's frames differ in
+    /// size; each frame's camera has its own).
     pub width: u32,
-    /// Image height after downscaling (of the same frame as `width`).
+    /// Image height after downscaling (the largest, likewise).
     pub height: u32,
     /// Colour the images were composited over.
     pub background: [f32; 3],

@@ -201,7 +201,6 @@ impl Trainer {
         scene.sh_degree = 0;
         let grads = Gradients::new(ctx, &scene)?;
         let mom = Self::moments(ctx, &scene, None)?;
-        let (w, h) = (train.width, train.height);
         let views = TrainViews::upload(ctx, train, TrainViews::default_chunk_bytes(ctx))?;
         let float_atomics = std::env::var("SVRASTER_NO_FLOAT_ATOMICS").is_err();
         let schedule = cfg.schedule();
@@ -222,8 +221,6 @@ impl Trainer {
             loss: PixelLoss::new(ctx)?,
             views,
             cams,
-            width: w,
-            height: h,
             order: Vec::new(),
             iter: 0,
             timing: None,

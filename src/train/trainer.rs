@@ -83,8 +83,6 @@ pub struct Trainer {
     pub(super) loss: PixelLoss,
     pub(super) views: TrainViews,
     pub(super) cams: Vec<Camera>,
-    pub(super) width: u32,
-    pub(super) height: u32,
     pub(super) rng: rand_pcg::Pcg64,
     pub(super) order: Vec<usize>,
     pub(super) iter: u32,
@@ -482,10 +480,5 @@ impl Trainer {
             self.scene.voxels as usize * 3,
             self.scene.voxels as usize * 3 * self.scene.shs_per_voxel as usize,
         ]
-    }
-
-    /// Training image size (the largest view's where they differ).
-    pub fn image_size(&self) -> (u32, u32) {
-        (self.width, self.height)
     }
 }
