@@ -122,6 +122,16 @@ impl Camera {
         }))
     }
 
+    /// World-to-camera matrix: rows `[Rᵀ | −Rᵀ·origin]`.
+    pub fn w2c(&self) -> [[f64; 4]; 3] {
+        let rt = self.rotation().transpose();
+        let t = -(rt * DVec3::from(self.origin()));
+        std::array::from_fn(|r| {
+            let row = rt.row(r);
+            [row.x, row.y, row.z, t[r]]
+        })
+    }
+
     /// World-to-camera transform of a point.
     pub fn world_to_camera(&self, p: [f64; 3]) -> [f64; 3] {
         let q = DVec3::from(p) - DVec3::from(self.origin());

@@ -887,7 +887,7 @@ fn ply_points() {
 fn write_npy(path: &Path, rows: usize, cols: usize, v: &[f64]) {
     let mut header =
         format!("{{'descr': '<f8', 'fortran_order': False, 'shape': ({rows}, {cols}), }}");
-    while (10 + header.len() + 1) % 64 != 0 {
+    while !(10 + header.len() + 1).is_multiple_of(64) {
         header.push(' ');
     }
     header.push('\n');
@@ -963,4 +963,246 @@ fn llff_fixture() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("2 poses") && e.contains("3 images"), "{e}");
+}
+
+// ---------------------------------------------------------------------------------
+// NeuS / DTU layout: cameras_sphere.npz + image/ + mask/.
+
+/// A `.npy` (v1.0, little-endian f64, C order) of a 4×4 matrix.
+fn npy4(m: &[[f64; 4]; 4]) -> Vec<u8> {
+    let mut header = "{'descr': '<f8', 'fortran_order': False, 'shape': (4, 4), }".to_string();
+    while !(10 + header.len() + 1).is_multiple_of(64) {
+        header.push(' ');
+    }
+    header.push('\n');
+    let mut out = b"\x93NUMPY\x01\x00".to_vec();
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    for row in m {
+        for x in row {
+            out.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    out
+}
+
+/// Writes a NeuS capture of the demo scene seen by `cams` (photos and masks from the
+/// analytic renderer); the sphere is `centre`, `radius`. Returns the 8-bit photos and
+/// masks as written.
+#[allow(clippy::type_complexity)]
+fn write_neus(
+    dir: &Path,
+    cams: &[svraster::Camera],
+    centre: [f64; 3],
+    radius: f64,
+) -> Vec<(Vec<[f32; 3]>, Vec<f32>)> {
+    use std::io::Write;
+    std::fs::create_dir_all(dir.join("image")).unwrap();
+    std::fs::create_dir_all(dir.join("mask")).unwrap();
+    let f = std::fs::File::create(dir.join("cameras_sphere.npz")).unwrap();
+    let mut zip = zip::ZipWriter::new(f);
+    let opts: zip::write::SimpleFileOptions =
+        zip::write::SimpleFileOptions::default().compression_method(zip::CompressionMethod::Stored);
+    let scale = [
+        [radius, 0.0, 0.0, centre[0]],
+        [0.0, radius, 0.0, centre[1]],
+        [0.0, 0.0, radius, centre[2]],
+        [0.0, 0.0, 0.0, 1.0],
+    ];
+    let mut written = Vec::new();
+    for (i, c) in cams.iter().enumerate() {
+        // K with NeuS's integer pixel centres, [R | t] world to camera; P up to a scale
+        // (negative for one view: the decomposition must fix the sign).
+        let k = [
+            [c.fx, 0.0, c.cx - 0.5],
+            [0.0, c.fy, c.cy - 0.5],
+            [0.0, 0.0, 1.0],
+        ];
+        let w2c = c.w2c();
+        let s = if i == 1 { -2.5 } else { 3.7 };
+        let mut p = [[0.0; 4]; 4];
+        for r in 0..3 {
+            for col in 0..4 {
+                p[r][col] = s * (0..3).map(|j| k[r][j] * w2c[j][col]).sum::<f64>();
+            }
+        }
+        p[3] = [0.0, 0.0, 0.0, 1.0];
+        for (name, m) in [
+            (format!("world_mat_{i}"), p),
+            (format!("scale_mat_{i}"), scale),
+        ] {
+            zip.start_file(format!("{name}.npy"), opts).unwrap();
+            zip.write_all(&npy4(&m)).unwrap();
+        }
+        let rgba = svraster::data::demo::render_rgba(c);
+        let q = |x: f32| (x.clamp(0.0, 1.0) * 255.0).round() / 255.0;
+        let rgb: Vec<[f32; 3]> = rgba.iter().map(|p| [q(p[0]), q(p[1]), q(p[2])]).collect();
+        let mask: Vec<f32> = rgba.iter().map(|p| q(p[3])).collect();
+        save_rgb_png(
+            &dir.join(format!("image/{i:06}.png")),
+            c.width,
+            c.height,
+            &rgb,
+        )
+        .unwrap();
+        svraster::data::image::save_gray_png(
+            &dir.join(format!("mask/{i:03}.png")),
+            c.width,
+            c.height,
+            &mask,
+        )
+        .unwrap();
+        written.push((rgb, mask));
+    }
+    zip.finish().unwrap();
+    written
+}
+
+#[test]
+fn neus_capture_cameras_masks_and_sphere() {
+    let dir = tmp("neus");
+    let cams: Vec<svraster::Camera> = (0..10)
+        .map(|i| {
+            let a = i as f64 * 0.63;
+            svraster::Camera::look_at(
+                [3.5 * a.cos(), 3.5 * a.sin(), 1.2 + 0.1 * i as f64],
+                [0.05, -0.1, 0.0],
+                [0.0, 0.0, 1.0],
+                0.8,
+                40 + (i % 2),
+                30,
+            )
+        })
+        .collect();
+    let written = write_neus(dir.path(), &cams, [0.1, -0.2, 0.3], 1.5);
+    let bg = [0.2f32, 0.4, 0.6];
+    assert_eq!(
+        svraster::data::detect_format(dir.path()),
+        svraster::data::Format::Neus
+    );
+    let all = svraster::data::load_split(dir.path(), "all", 1.0, bg).unwrap();
+    assert!(all.alpha);
+    assert_eq!(all.sphere, Some(([0.1, -0.2, 0.3], 1.5)));
+    assert_eq!(all.frames.len(), 10);
+    for (i, (f, c)) in all.frames.iter().zip(&cams).enumerate() {
+        assert_eq!((f.camera.width, f.camera.height), (c.width, c.height));
+        for (a, b) in [
+            (f.camera.fx, c.fx),
+            (f.camera.fy, c.fy),
+            (f.camera.cx, c.cx),
+            (f.camera.cy, c.cy),
+        ] {
+            assert!(
+                (a - b).abs() < 1e-9 * b.abs().max(1.0),
+                "view {i}: {a} vs {b}"
+            );
+        }
+        for r in 0..3 {
+            for k in 0..4 {
+                assert!(
+                    (f.camera.c2w[r][k] - c.c2w[r][k]).abs() < 1e-9,
+                    "view {i} c2w[{r}][{k}]"
+                );
+            }
+        }
+        let (rgb, mask) = &written[i];
+        for ((p, q), a) in f.rgb.iter().zip(rgb).zip(mask) {
+            for ch in 0..3 {
+                let want = q[ch] * a + bg[ch] * (1.0 - a);
+                assert!((p[ch] - want).abs() < 1e-6, "view {i}: composite");
+            }
+        }
+    }
+    // Every 8th view is test; masks come back per split, downscaled like the photos.
+    let train = svraster::data::load_split(dir.path(), "train", 2.0, bg).unwrap();
+    assert_eq!(
+        train
+            .frames
+            .iter()
+            .map(|f| f.name.as_str())
+            .collect::<Vec<_>>(),
+        ["000001", "000002", "000003", "000004", "000005", "000006", "000007", "000009"]
+    );
+    let masks = svraster::data::neus::load_masks(dir.path(), "train", 2.0, 8).unwrap();
+    assert_eq!(masks.len(), 8);
+    assert_eq!(
+        masks[0].len(),
+        (train.frames[0].camera.width * train.frames[0].camera.height) as usize
+    );
+    let m1 = &written[1].1;
+    let want00 = (m1[0] + m1[1] + m1[40 + 1] + m1[40 + 1 + 1]) / 4.0;
+    assert!(
+        (masks[0][0] - want00).abs() < 1e-6,
+        "2×2 box average of the first view's mask (41 wide)"
+    );
+    // The run's main region is the sphere.
+    let mut cfg = svraster::TrainConfig::preset("object").unwrap();
+    let mut t = svraster::data::load_split(dir.path(), "train", 1.0, bg).unwrap();
+    let r = svraster::train::bounds::resolve_run(&mut cfg, &mut t)
+        .unwrap()
+        .unwrap();
+    assert_eq!(
+        (r.mode, r.center, r.radius),
+        ("sphere", [0.1, -0.2, 0.3], 1.5)
+    );
+    assert_eq!(cfg.world_scale, 1.5);
+
+    // Bad input: one error naming the file.
+    std::fs::remove_file(dir.path().join("mask/003.png")).unwrap();
+    let e = svraster::data::load_split(dir.path(), "all", 1.0, bg)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("mask") && e.contains("9 masks for 10 images"),
+        "{e}"
+    );
+    std::fs::remove_dir_all(dir.path().join("mask")).unwrap();
+    let opaque = svraster::data::load_split(dir.path(), "all", 1.0, bg).unwrap();
+    assert!(!opaque.alpha, "no mask/ folder: opaque photos");
+    std::fs::remove_file(dir.path().join("image/000004.png")).unwrap();
+    let e = svraster::data::load_split(dir.path(), "all", 1.0, bg)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("cameras_sphere.npz") && e.contains("9 images"),
+        "{e}"
+    );
+    std::fs::write(dir.path().join("cameras_sphere.npz"), b"not a zip").unwrap();
+    let e = svraster::data::load_split(dir.path(), "all", 1.0, bg)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("cameras_sphere.npz") && e.contains("zip"), "{e}");
+}
+
+/// The DTU scan in ../shared/data: 49 views, and the sphere's centre projects inside
+/// every mask.
+#[test]
+fn dtu_scan37_loads_with_the_sphere_inside_every_mask() {
+    let dir = Path::new(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../shared/data/dtu_scan37"
+    ));
+    if !dir.join("cameras_sphere.npz").is_file() {
+        println!("skipped: {} is absent", dir.display());
+        return;
+    }
+    let ds = svraster::data::load(dir, "all", 4.0, [0.0; 3], &Default::default()).unwrap();
+    let masks = svraster::data::neus::load_masks(dir, "all", 4.0, 8).unwrap();
+    assert_eq!(ds.frames.len(), 49);
+    let (c, r) = ds.sphere.unwrap();
+    assert!(r > 100.0 && r < 1000.0, "DTU millimetres: radius {r}");
+    for (f, m) in ds.frames.iter().zip(&masks) {
+        let q = f.camera.world_to_camera(c);
+        let (u, v) = (
+            f.camera.fx * q[0] / q[2] + f.camera.cx,
+            f.camera.fy * q[1] / q[2] + f.camera.cy,
+        );
+        let (x, y) = (u.floor() as usize, v.floor() as usize);
+        assert!(q[2] > 0.0 && x < f.camera.width as usize && y < f.camera.height as usize);
+        assert!(
+            m[y * f.camera.width as usize + x] > 0.5,
+            "{}: centre outside the mask",
+            f.name
+        );
+    }
 }

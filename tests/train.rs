@@ -393,6 +393,7 @@ fn training_views_pack_into_chunks() {
         alpha: true,
         split: "train".into(),
         points: Vec::new(),
+        sphere: None,
     };
     // 1000 bytes: [420 + 576], [540] (+ 504 would be 1044), [504 + 480].
     for (chunk_bytes, want_chunks) in [(1000, 3), (200, 5), (1 << 30, 1)] {

@@ -54,6 +54,7 @@ pub fn format_preset(format: data::Format) -> &'static str {
         data::Format::Blender => "synthetic",
         data::Format::Colmap | data::Format::Nerfstudio => "real",
         data::Format::Llff => "forward",
+        data::Format::Neus => "object",
     }
 }
 

@@ -149,6 +149,7 @@ pub fn load_split(
         alpha: true,
         split: split.to_string(),
         points: Vec::new(),
+        sphere: None,
     })
 }
 

@@ -263,6 +263,7 @@ pub fn load_shots_from(
         alpha: false,
         split: split.into(),
         points: Vec::new(),
+        sphere: None,
     })
 }
 

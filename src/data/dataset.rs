@@ -35,6 +35,9 @@ pub struct Dataset {
     /// The capture's sparse 3-D points in world coordinates (COLMAP `points3D`; empty
     /// for synthetic data): one way to bound the scene ([`crate::train::bounds`]).
     pub points: Vec<[f64; 3]>,
+    /// A sphere (centre, radius; world coordinates) the capture says holds the object
+    /// (NeuS' `scale_mat`); the main region of bound `auto`/`sphere`.
+    pub sphere: Option<([f64; 3], f64)>,
 }
 
 impl Dataset {
@@ -70,6 +73,10 @@ impl Dataset {
         }
         for p in &mut self.points {
             *p = world.point_to_model(*p);
+        }
+        if let Some((c, r)) = &mut self.sphere {
+            *c = world.point_to_model(*c);
+            *r /= world.scale;
         }
     }
 

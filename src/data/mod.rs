@@ -16,6 +16,7 @@ pub mod image;
 pub mod lens;
 pub mod llff;
 pub mod nerfstudio;
+pub mod neus;
 pub mod ply;
 
 /// The pinhole camera (its home is [`crate::camera`]; re-exported for loaders).
@@ -35,11 +36,13 @@ pub enum Format {
     Nerfstudio,
     /// LLFF's `poses_bounds.npy` + photos.
     Llff,
+    /// NeuS / IDR object captures (DTU): `cameras_sphere.npz` + `image/` + `mask/`.
+    Neus,
 }
 
 impl Format {
     /// Every format, as `--format` names them.
-    pub const NAMES: [&'static str; 4] = ["blender", "colmap", "nerfstudio", "llff"];
+    pub const NAMES: [&'static str; 5] = ["blender", "colmap", "nerfstudio", "llff", "neus"];
 
     pub fn from_name(name: &str) -> Option<Format> {
         match name {
@@ -47,6 +50,7 @@ impl Format {
             "colmap" => Some(Format::Colmap),
             "nerfstudio" => Some(Format::Nerfstudio),
             "llff" => Some(Format::Llff),
+            "neus" => Some(Format::Neus),
             _ => None,
         }
     }
@@ -65,7 +69,8 @@ pub struct SourceOptions {
 /// The layout of the dataset in `dir`: COLMAP when it has a sparse model
 /// ([`colmap::find_model`]) and no `transforms_*.json` (a COLMAP model wins over a
 /// `poses_bounds.npy` beside it), else nerfstudio when it has a `transforms.json`, else
-/// LLFF when it has a `poses_bounds.npy`, else Blender (whose loader explains what is
+/// LLFF when it has a `poses_bounds.npy`, else NeuS when it has a `cameras_sphere.npz`,
+/// else Blender (whose loader explains what is
 /// missing).
 pub fn detect_format(dir: &std::path::Path) -> Format {
     let transforms = std::fs::read_dir(dir).is_ok_and(|entries| {
@@ -81,6 +86,8 @@ pub fn detect_format(dir: &std::path::Path) -> Format {
         Format::Nerfstudio
     } else if !transforms && dir.join("poses_bounds.npy").is_file() {
         Format::Llff
+    } else if !transforms && dir.join("cameras_sphere.npz").is_file() {
+        Format::Neus
     } else {
         Format::Blender
     }
@@ -125,5 +132,14 @@ pub fn load(
         Format::Colmap => capture::load_colmap(dir, split, &opts),
         Format::Llff => capture::load_llff(dir, split, &opts),
         Format::Nerfstudio => capture::load_nerfstudio(dir, split, &opts),
+        Format::Neus => {
+            if source.images.is_some() {
+                return Err(crate::Error::Invalid(format!(
+                    "{}: a NeuS capture's photos are in image/ (--images does not apply)",
+                    dir.display()
+                )));
+            }
+            neus::load(dir, split, downscale, background, opts.holdout)
+        }
     }
 }

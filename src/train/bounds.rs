@@ -10,7 +10,9 @@
 //!   median, radius = the smallest L∞ distance beyond the densest ball (at least 5 % of
 //!   the points in it) where the point density falls below 10 % of its peak (the
 //!   reference's `pcd` heuristic).
-//! - `auto`: for forward-facing cameras (every pair of viewing directions has a positive
+//! - `sphere`: the capture's own bounding sphere of the object (NeuS/DTU `scale_mat`: the
+//!   unit sphere of its normalisation), when it has one.
+//! - `auto`: `sphere` when the capture has one; else for forward-facing cameras (every pair of viewing directions has a positive
 //!   dot product) `points` when the capture has sparse points, else `forward`; for the
 //!   others `camera_median`. `forward` assumes the scene lies about as far in front of
 //!   the cameras as they are spread apart, true of NeRF's normalised LLFF poses but not
@@ -27,13 +29,14 @@ use crate::camera::Camera;
 use crate::{Error, Result};
 
 /// Bound modes accepted by the `bound` config key (`box`: use `center`/`extent` as set).
-pub const BOUND_MODES: [&str; 6] = [
+pub const BOUND_MODES: [&str; 7] = [
     "box",
     "auto",
     "camera_median",
     "camera_max",
     "forward",
     "points",
+    "sphere",
 ];
 
 /// For a run whose `bound` is not "box": the main region of the training data, made the
@@ -47,7 +50,15 @@ pub fn resolve_world(
     if cfg.bound == "box" {
         return Ok(None);
     }
-    let r = main_region(&train.cameras(), &train.points, &cfg.bound)?;
+    let r = match (&train.sphere, cfg.bound.as_str()) {
+        (Some((center, radius)), "auto" | "sphere") => MainRegion {
+            center: *center,
+            radius: *radius,
+            mode: "sphere",
+            forward: false,
+        },
+        _ => main_region(&train.cameras(), &train.points, &cfg.bound)?,
+    };
     cfg.world_center = r.center;
     cfg.world_scale = r.radius;
     cfg.center = [0.0; 3];
@@ -116,6 +127,14 @@ pub fn main_region(cams: &[Camera], points: &[[f64; 3]], mode: &str) -> Result<M
             )))
         }
         "points" => "points",
+        "sphere" => {
+            return Err(Error::Invalid(
+                "bound mode `sphere` needs a capture that gives its object's bounding sphere \
+                 (NeuS/DTU cameras_sphere.npz); use auto, camera_median, camera_max, forward, \
+                 points or box"
+                    .into(),
+            ))
+        }
         "camera_median" => "camera_median",
         "camera_max" => "camera_max",
         "forward" => "forward",

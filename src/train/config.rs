@@ -231,6 +231,14 @@ pub const PRESETS: &[(&str, &str)] = &[
          background and no inside loss",
     ),
     (
+        "object",
+        "object captures with a bounding sphere (the default for NeuS/DTU data; the \
+         reference's dtu_mesh configuration without its depth-normal losses): main region \
+         = the capture's sphere, one background shell level with few voxels, black \
+         background, 3 samples per ray-voxel segment, transmittance-concentration loss \
+         0.01, ray-colour concentration 0.1",
+    ),
+    (
         "quick",
         "short runs on CPU devices: the synthetic configuration without supersampling \
          (the density learning rate scales with the run length in every preset: 0.1 up to \
@@ -294,6 +302,15 @@ impl TrainConfig {
                     c.lambda_t_inside = 0.01;
                     c.background_from_photos = true;
                 }
+            }
+            "object" => {
+                c.bound = "auto".into();
+                c.outside_level = 1;
+                c.init_out_ratio = 0.01;
+                c.background = [0.0; 3];
+                c.samples = 3;
+                c.lambda_t = 0.01;
+                c.lambda_r = 0.1;
             }
             "quick" => {
                 c.grid_level = 6;
