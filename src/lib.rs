@@ -8,6 +8,7 @@
 //! - [`train`]: losses, backward, Adam and the training loop; [`adapt`]: pruning and
 //!   subdivision of the voxel layout.
 //! - [`eval`]: PSNR, SSIM and model evaluation (the numbers every report quotes).
+//! - [`mesh`]: TSDF fusion and marching cubes over sparse voxels, PLY output.
 //!
 //! The types most programs need are re-exported here.
 
@@ -19,6 +20,7 @@ pub mod eval;
 pub mod fsio;
 #[macro_use]
 pub mod gpu;
+pub mod mesh;
 pub mod raster;
 pub mod scan;
 pub mod scene;

@@ -1118,3 +1118,126 @@ fn colmap_capture_train_eval_with_data_options() {
     ]);
     assert!(!ok && err.contains("apply to captures"), "{err}");
 }
+
+/// `python3` with numpy: Debian's own (a pyenv or venv earlier on PATH may lack it).
+fn python() -> &'static str {
+    if std::path::Path::new("/usr/bin/python3").exists() {
+        "/usr/bin/python3"
+    } else {
+        "python3"
+    }
+}
+
+/// `svraster mesh` on the analytically voxelized demo scene: the PLY reads back with an
+/// independent numpy reader (tools/ply_read.py), lies on the true surface (eval-mesh
+/// --demo), and bad requests fail with one clear error and no file.
+#[test]
+fn mesh_of_the_voxelized_demo_is_accurate_and_readable() {
+    let dir = tmp("mesh");
+    let d = dir.path().to_str().unwrap();
+    let (ok, _, err) = svraster(&[
+        "demo",
+        "--out",
+        d,
+        "--size",
+        "64",
+        "--voxelize",
+        "--level",
+        "7",
+    ]);
+    assert!(ok, "{err}");
+    let run = dir.path().join("run");
+    let data = dir.path().join("data");
+    let (run, data) = (run.to_str().unwrap(), data.to_str().unwrap());
+    let ply = dir.path().join("m.ply");
+    let p = ply.to_str().unwrap();
+    let (ok, out, err) = svraster(&[
+        "mesh",
+        run,
+        "--data",
+        data,
+        "--out",
+        p,
+        "--vertex-colors",
+        "--preview",
+        "1",
+    ]);
+    assert!(ok, "{err}");
+    assert!(err.contains("← mesh level"), "{err}");
+    assert!(dir.path().join("m_r_0.png").is_file(), "preview written");
+    // "wrote …: V vertices, T triangles, …"
+    let count = |what: &str| -> u64 {
+        let i = out.find(what).unwrap_or_else(|| panic!("{what} in {out}"));
+        out[..i].split_whitespace().last().unwrap().parse().unwrap()
+    };
+    let (nv, nt) = (count(" vertices"), count(" triangles"));
+    let py = Command::new(python())
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tools/ply_read.py"))
+        .arg(p)
+        .output()
+        .expect("run python3 (tools/setup.sh installs python3-numpy)");
+    assert!(
+        py.status.success(),
+        "tools/ply_read.py failed (needs python3-numpy: tools/setup.sh): {}",
+        String::from_utf8_lossy(&py.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&py.stdout).unwrap();
+    assert_eq!(v["vertices"].as_u64(), Some(nv));
+    assert_eq!(v["faces"].as_u64(), Some(nt));
+    assert!(v["max_index"].as_i64().unwrap() < nv as i64);
+    let props: Vec<&str> = v["properties"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_str().unwrap())
+        .collect();
+    assert_eq!(
+        props,
+        ["x", "y", "z", "nx", "ny", "nz", "red", "green", "blue"]
+    );
+    // The demo's primitives span [-0.8, 0.8] × [-0.8, 0.8] × [-0.7, 0.4].
+    for k in 0..3 {
+        let (lo, hi) = (v["min"][k].as_f64().unwrap(), v["max"][k].as_f64().unwrap());
+        assert!(
+            lo > -0.9 && hi < 0.9 && hi - lo > 1.0,
+            "axis {k}: {lo}..{hi}"
+        );
+    }
+    let (ok, out, err) = svraster(&["eval-mesh", p, "--data", data, "--demo", "--json"]);
+    assert!(ok, "{err}");
+    let e: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let (chamfer, f) = (
+        e["chamfer"].as_f64().unwrap(),
+        e["fscore"].as_f64().unwrap(),
+    );
+    println!("voxelized demo, level 7: Chamfer {chamfer:.4}, F-score {f:.3} at 0.02");
+    // Level-6 voxels are 3/64 = 0.047 wide: measured Chamfer 0.019, F 0.66.
+    assert!(
+        chamfer < 0.025 && f > 0.55,
+        "Chamfer {chamfer}, F-score {f}"
+    );
+
+    // Bad requests: one clear error, no file.
+    let bad = dir.path().join("bad.ply");
+    let b = bad.to_str().unwrap();
+    for (args, want) in [
+        (vec!["--bbox", "5", "5", "5", "6", "6", "6"], "no voxel"),
+        (vec!["--bbox", "1", "1", "1", "0", "0", "0"], "min < max"),
+        (vec!["--max-voxels", "100"], "--level"),
+        (vec!["--trunc", "0.5"], "at least 1"),
+        (vec!["--level", "17"], "outside 1..=16"),
+    ] {
+        let mut a = vec!["mesh", run, "--data", data, "--out", b];
+        a.extend(args.iter().copied());
+        let (ok, _, err) = svraster(&a);
+        assert!(!ok && err.contains(want), "{args:?}: {err}");
+        assert_eq!(err.matches("error").count(), 1, "{args:?}: {err}");
+        assert!(!bad.exists(), "{args:?} left a file");
+    }
+    std::fs::write(&bad, b"ply\nformat ascii 1.0\nend_header\n").unwrap();
+    let (ok, _, err) = svraster(&["eval-mesh", b, "--data", data, "--demo"]);
+    assert!(
+        !ok && err.contains("bad.ply") && err.contains("binary_little_endian"),
+        "{err}"
+    );
+}

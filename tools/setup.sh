@@ -9,10 +9,12 @@
 #  - libshaderc-dev glslang-dev spirv-tools: shaderc and the static glslang/SPIRV-Tools
 #    archives build.rs links (see .cargo/config.toml)
 #  - vulkan-tools: vulkaninfo, handy for diagnosing a driver
+#  - python3-numpy: tools/ply_read.py, the independent PLY reader the mesh tests check
+#    our PLY output with
 set -euo pipefail
 MESA=${MESA:-backports}
 PKGS=(mesa-vulkan-drivers libvulkan1 libvulkan-dev libshaderc-dev glslang-dev spirv-tools
-      vulkan-validationlayers vulkan-tools g++ pkg-config)
+      vulkan-validationlayers vulkan-tools g++ pkg-config python3 python3-numpy)
 SUDO=""
 [ "$(id -u)" -ne 0 ] && SUDO="sudo"
 missing=()

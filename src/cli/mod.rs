@@ -3,6 +3,7 @@
 mod bench;
 mod bench_sort;
 mod info;
+mod mesh;
 mod plot;
 mod progress;
 mod render;
@@ -37,7 +38,7 @@ struct Cli {
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct DataArgs {
     /// Dataset layout (default: detected — transforms_*.json: blender; sparse/0: colmap;
-    /// transforms.json: nerfstudio; poses_bounds.npy: llff).
+    /// transforms.json: nerfstudio; poses_bounds.npy: llff; cameras_sphere.npz: neus).
     #[arg(long, value_parser = svraster::data::Format::NAMES)]
     format: Option<String>,
     /// Image folder of a capture, e.g. images_4 (intrinsics scaled to its images;
@@ -113,7 +114,8 @@ enum Command {
     /// Train a model on the train split of a dataset (Blender, COLMAP, nerfstudio or LLFF).
     Train {
         /// Dataset directory: Blender (transforms_*.json), COLMAP (sparse/0 + images),
-        /// nerfstudio (transforms.json) or LLFF (poses_bounds.npy); see --format.
+        /// nerfstudio (transforms.json), LLFF (poses_bounds.npy) or NeuS
+        /// (cameras_sphere.npz + image/ + mask/); see --format.
         data: PathBuf,
         /// Run directory: config.json, stats.jsonl, model.safetensors, optimizer.safetensors.
         #[arg(long)]
@@ -125,9 +127,9 @@ enum Command {
         /// with --resume).
         #[arg(long)]
         downscale: Option<f64>,
-        /// Configuration preset: synthetic, real, forward or quick (default: the data's —
-        /// Blender: synthetic, COLMAP/nerfstudio: real, LLFF: forward; with --resume: the
-        /// run's).
+        /// Configuration preset: synthetic, real, forward, object or quick (default: the
+        /// data's — Blender: synthetic, COLMAP/nerfstudio: real, LLFF: forward, NeuS:
+        /// object; with --resume: the run's).
         #[arg(long)]
         preset: Option<String>,
         /// Random seed.
@@ -207,6 +209,93 @@ enum Command {
         #[arg(long)]
         ss: Option<f32>,
         /// (default: the run's own when MODEL is a run directory)
+        #[command(flatten)]
+        source: DataArgs,
+    },
+    /// Extract a triangle mesh (binary PLY, world coordinates) from a model: the surface
+    /// depth of the training views fused into a truncated signed distance on sparse
+    /// voxels of one level, then marching cubes.
+    Mesh {
+        /// A .safetensors checkpoint, or a run directory holding model.safetensors.
+        model: PathBuf,
+        /// Dataset the model was trained on (its views are fused).
+        #[arg(long)]
+        data: PathBuf,
+        /// Output PLY file (written atomically).
+        #[arg(long)]
+        out: PathBuf,
+        /// Split whose views are fused.
+        #[arg(long, default_value = "train", value_parser = ["train", "val", "test", "all"])]
+        split: String,
+        /// Downscale factor of the views (default: the run's own when MODEL is a run
+        /// directory, else 1).
+        #[arg(long)]
+        downscale: Option<f64>,
+        /// Octree level of the marching-cubes voxels (default: the model's finest level in
+        /// the region; each level down halves the resolution and quarters the triangles).
+        #[arg(long)]
+        level: Option<u32>,
+        /// Truncation band of the signed distance, in voxels of the mesh level.
+        #[arg(long, default_value_t = 5.0)]
+        trunc: f64,
+        /// Box to mesh, world coordinates: min x y z then max x y z (default: the run's
+        /// main region, else the whole model).
+        #[arg(long, num_args = 6, allow_negative_numbers = true, value_names = ["X0", "Y0", "Z0", "X1", "Y1", "Z1"])]
+        bbox: Option<Vec<f64>>,
+        /// Depth fused: median (where transmittance crosses 0.5) or mean.
+        #[arg(long, default_value = "median", value_parser = ["median", "mean"])]
+        depth: String,
+        /// Samples per ray-voxel segment of the depth renders (1..=3).
+        #[arg(long, default_value_t = 1)]
+        samples: u32,
+        /// Write per-vertex colours (the model's view-independent colour).
+        #[arg(long)]
+        vertex_colors: bool,
+        /// Most voxels the extraction may fuse.
+        #[arg(long, default_value_t = 64 << 20)]
+        max_voxels: u64,
+        /// Write N views (evenly spaced over the split) as OUT_NAME.png: the photo beside
+        /// the mesh, shaded.
+        #[arg(long, default_value_t = 0)]
+        preview: usize,
+        /// (default: the run's own when MODEL is a run directory)
+        #[command(flatten)]
+        source: DataArgs,
+    },
+    /// Measure a mesh (PLY, world coordinates) against a ground truth: accuracy,
+    /// completeness, Chamfer distance and F-score (DTU protocol terms), and the silhouette
+    /// IoU against the masks of a NeuS capture.
+    EvalMesh {
+        /// The mesh (binary little-endian PLY, e.g. from `svraster mesh`).
+        mesh: PathBuf,
+        /// The dataset: its cameras decide what is visible (--demo); a NeuS capture's
+        /// masks are compared with the mesh's silhouettes.
+        #[arg(long)]
+        data: PathBuf,
+        /// Split whose cameras are used.
+        #[arg(long, default_value = "train", value_parser = ["train", "val", "test", "all"])]
+        split: String,
+        /// Downscale of the views the silhouettes are compared at.
+        #[arg(long, default_value_t = 1.0)]
+        downscale: f64,
+        /// Ground truth: the built-in demo scene's analytic surface, where the split's
+        /// cameras see it.
+        #[arg(long)]
+        demo: bool,
+        /// Ground truth: a point cloud (PLY, world coordinates).
+        #[arg(long)]
+        truth: Option<PathBuf>,
+        /// Distance below which a point counts as matched (F-score; default: demo 0.02,
+        /// else 0.5 % of the truth's bounding-box diagonal).
+        #[arg(long)]
+        threshold: Option<f64>,
+        /// Distances are clamped at this (outlier threshold; default 5× (demo) or 10× the
+        /// threshold).
+        #[arg(long)]
+        max_dist: Option<f64>,
+        /// Print one JSON object.
+        #[arg(long)]
+        json: bool,
         #[command(flatten)]
         source: DataArgs,
     },
@@ -298,6 +387,75 @@ pub fn run() -> anyhow::Result<()> {
             };
             train::run_eval(&ctx, &model, &views, ss, json)?
         }
+        Command::Mesh {
+            model,
+            data,
+            out,
+            split,
+            downscale,
+            level,
+            trunc,
+            bbox,
+            depth,
+            samples,
+            vertex_colors,
+            max_voxels,
+            preview,
+            source,
+        } => {
+            let main_region = run_config(&model).and_then(|v| {
+                let c: [f64; 3] = serde_json::from_value(v["center"].clone()).ok()?;
+                let e = v["extent"].as_f64()?;
+                Some((c, e))
+            });
+            mesh::run_mesh(
+                &ctx,
+                mesh::MeshArgs {
+                    downscale: downscale.unwrap_or_else(|| run_downscale(&model)),
+                    source: run_source(&model, &source),
+                    model,
+                    data,
+                    out,
+                    split,
+                    level,
+                    trunc,
+                    bbox,
+                    depth: if depth == "mean" {
+                        svraster::mesh::DepthKind::Mean
+                    } else {
+                        svraster::mesh::DepthKind::Median
+                    },
+                    samples,
+                    vertex_colors,
+                    max_voxels,
+                    preview,
+                    main_region,
+                },
+            )?
+        }
+        Command::EvalMesh {
+            mesh,
+            data,
+            split,
+            downscale,
+            demo,
+            truth,
+            threshold,
+            max_dist,
+            json,
+            source,
+        } => mesh::run_eval_mesh(mesh::EvalMeshArgs {
+            mesh,
+            data,
+            split,
+            downscale,
+            source: source.source(),
+            demo,
+            truth,
+            threshold,
+            max_dist,
+            json,
+        })?,
         Command::Render {
             model,
             data,

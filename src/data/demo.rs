@@ -641,3 +641,75 @@ pub fn voxelize(max_level: u32, sh_degree: u32) -> Result<Scene> {
 fn unit(v: DVec3) -> DVec3 {
     v / v.length()
 }
+
+/// Points on the demo scene's visible surface, about `spacing` apart: samples on every
+/// primitive's surface (uniform by area, fixed seed) that lie on the union's boundary
+/// (inside no other primitive) and that a camera at one of `eyes` sees (its ray to the
+/// point hits nothing before it). The ground truth of mesh accuracy tests.
+pub fn surface_samples(eyes: &[[f64; 3]], spacing: f64) -> Vec<[f64; 3]> {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_pcg::Pcg64::seed_from_u64(17);
+    let mut out = Vec::new();
+    for (pi, prim) in PRIMITIVES.iter().enumerate() {
+        type Sampler = Box<dyn Fn(&mut rand_pcg::Pcg64) -> DVec3>;
+        let (area, sample): (f64, Sampler) = match prim.shape {
+            Shape::Sphere { center, radius } => (
+                4.0 * std::f64::consts::PI * radius * radius,
+                Box::new(move |r: &mut rand_pcg::Pcg64| {
+                    let z: f64 = r.gen_range(-1.0..1.0);
+                    let phi: f64 = r.gen_range(0.0..std::f64::consts::TAU);
+                    let s = (1.0 - z * z).sqrt();
+                    center + DVec3::new(s * phi.cos(), s * phi.sin(), z) * radius
+                }),
+            ),
+            Shape::Box { center, half } => {
+                let faces = [half.y * half.z, half.x * half.z, half.x * half.y];
+                let total = 8.0 * (faces[0] + faces[1] + faces[2]);
+                (
+                    total,
+                    Box::new(move |r: &mut rand_pcg::Pcg64| {
+                        let pick = r.gen_range(0.0..faces[0] + faces[1] + faces[2]);
+                        let axis = if pick < faces[0] {
+                            0
+                        } else if pick < faces[0] + faces[1] {
+                            1
+                        } else {
+                            2
+                        };
+                        let mut p = DVec3::new(
+                            r.gen_range(-1.0..1.0),
+                            r.gen_range(-1.0..1.0),
+                            r.gen_range(-1.0..1.0),
+                        );
+                        p[axis] = if r.gen_bool(0.5) { 1.0 } else { -1.0 };
+                        center + p * half
+                    }),
+                )
+            }
+        };
+        let n = (area / (spacing * spacing)).ceil() as usize;
+        for _ in 0..n {
+            let p = sample(&mut rng);
+            let inside_other = PRIMITIVES
+                .iter()
+                .enumerate()
+                .any(|(j, q)| j != pi && q.shape.signed_distance(p) < 0.0);
+            if inside_other {
+                continue;
+            }
+            let seen = eyes.iter().any(|e| {
+                let e = DVec3::from(*e);
+                let to = p - e;
+                let dist = to.length();
+                match ray_hit(e, to / dist) {
+                    Some(h) => h.t > dist - 1e-6 * dist.max(1.0),
+                    None => true,
+                }
+            });
+            if seen {
+                out.push(p.to_array());
+            }
+        }
+    }
+    out
+}

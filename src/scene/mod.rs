@@ -118,6 +118,11 @@ impl WorldFrame {
         std::array::from_fn(|a| (p[a] - self.center[a]) / self.scale)
     }
 
+    /// A model point in world coordinates (inverse of [`WorldFrame::point_to_model`]).
+    pub fn point_to_world(&self, p: [f64; 3]) -> [f64; 3] {
+        std::array::from_fn(|a| p[a] * self.scale + self.center[a])
+    }
+
     /// A world camera in model coordinates (same rotation, intrinsics and near plane in
     /// model units).
     pub fn camera_to_model(&self, cam: &crate::camera::Camera) -> crate::camera::Camera {
