@@ -182,3 +182,198 @@ fn pixel_losses_match_the_f64_reference() {
     }
     finish(&ctx);
 }
+
+// ---------------------------------------------------------------------------------
+// Depth–normal consistency (glsl/train/normal_loss.comp) vs the f64 loss and its
+// central differences.
+
+use svraster::train::loss::NormalLoss;
+use svraster::Camera;
+
+/// Camera-space normal from a depth map at interior pixel (x, y) (the reference's
+/// 3-pixel stencil), None where a depth is ≤ 0 or the cross product vanishes.
+fn depth_normal(d: &[f64], cam: &Camera, x: usize, y: usize) -> Option<[f64; 3]> {
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    if x < 1 || y < 1 || x + 2 > w || y + 2 > h {
+        return None;
+    }
+    let p = |x: usize, y: usize| -> Option<[f64; 3]> {
+        let z = d[y * w + x];
+        (z > 0.0).then(|| {
+            cam.camera_dir(x as f64 + 0.5, y as f64 + 0.5)
+                .map(|c| c * z)
+        })
+    };
+    let (r, l, dn, up) = (p(x + 1, y)?, p(x - 1, y)?, p(x, y + 1)?, p(x, y - 1)?);
+    let dx = [r[0] - l[0], r[1] - l[1], r[2] - l[2]];
+    let dy = [dn[0] - up[0], dn[1] - up[1], dn[2] - up[2]];
+    let u = [
+        dx[1] * dy[2] - dx[2] * dy[1],
+        dx[2] * dy[0] - dx[0] * dy[2],
+        dx[0] * dy[1] - dx[1] * dy[0],
+    ];
+    let len = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
+    (len > 0.0).then(|| u.map(|c| c / len))
+}
+
+/// λ_med·mean(1 − N·n_med) + λ_mean·mean(α² − α N·n_mean) over the pixels where the
+/// depth normal is defined (N rotated into camera space), and the two unweighted sums.
+#[allow(clippy::too_many_arguments)]
+fn normal_loss(
+    mean_d: &[f64],
+    med_d: &[f64],
+    alpha: &[f64],
+    nrm: &[[f64; 3]],
+    cam: &Camera,
+    lm: f64,
+    le: f64,
+) -> (f64, f64, f64) {
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let rot = cam.w2c();
+    let (mut sm, mut se) = (0.0, 0.0);
+    for y in 0..h {
+        for x in 0..w {
+            let k = y * w + x;
+            let n = nrm[k];
+            let nc: [f64; 3] = std::array::from_fn(|r| (0..3).map(|c| rot[r][c] * n[c]).sum());
+            let dot = |a: [f64; 3]| a[0] * nc[0] + a[1] * nc[1] + a[2] * nc[2];
+            if let Some(m) = depth_normal(med_d, cam, x, y) {
+                sm += 1.0 - dot(m);
+            }
+            if let Some(m) = depth_normal(mean_d, cam, x, y) {
+                se += alpha[k] * alpha[k] - alpha[k] * dot(m);
+            }
+        }
+    }
+    let np = (w * h) as f64;
+    (lm * sm / np + le * se / np, sm, se)
+}
+
+#[test]
+fn depth_normal_losses_match_the_f64_reference() {
+    let ctx = context();
+    let mut rng = Rng(0xd0e5);
+    let (w, h) = (23u32, 17u32);
+    let cam = Camera::look_at(
+        [2.0, -1.5, 1.2],
+        [0.1, 0.0, -0.1],
+        [0.0, 0.0, 1.0],
+        0.9,
+        w,
+        h,
+    );
+    let np = (w * h) as usize;
+    // A tilted plane's depth plus noise (normals vary but stay defined), with holes.
+    let plane = |hole: f64, rng: &mut Rng| -> Vec<f64> {
+        (0..np)
+            .map(|k| {
+                if rng.unit() < hole {
+                    0.0
+                } else {
+                    let (x, y) = ((k % w as usize) as f64, (k / w as usize) as f64);
+                    2.0 + 0.03 * x - 0.02 * y + rng.range(-0.05, 0.05)
+                }
+            })
+            .collect()
+    };
+    let mean_d = plane(0.08, &mut rng);
+    let med_d = plane(0.08, &mut rng);
+    let alpha: Vec<f64> = (0..np).map(|_| rng.range(0.0, 1.0)).collect();
+    let nrm: Vec<[f64; 3]> = (0..np)
+        .map(|_| {
+            let d = rng.dir();
+            let s = rng.range(0.2, 1.0);
+            d.map(|c| c * s)
+        })
+        .collect();
+    let (lm, le) = (0.7, 1.3);
+    let mut img = vec![0f32; CHANNELS * np];
+    for k in 0..np {
+        img[3 * np + k] = alpha[k] as f32;
+        img[4 * np + k] = mean_d[k] as f32;
+        img[5 * np + k] = med_d[k] as f32;
+        for c in 0..3 {
+            img[(6 + c) * np + k] = nrm[k][c] as f32;
+        }
+    }
+    // f64 values as the GPU sees them (f32-rounded inputs).
+    let r32 = |v: &[f64]| v.iter().map(|&x| x as f32 as f64).collect::<Vec<f64>>();
+    let (mean_d, med_d, alpha) = (r32(&mean_d), r32(&med_d), r32(&alpha));
+    let nrm: Vec<[f64; 3]> = nrm.iter().map(|n| n.map(|c| c as f32 as f64)).collect();
+    let img_buf = ctx.buffer_from("img", &img).unwrap();
+    let before: Vec<f32> = (0..dout::CHANNELS * np)
+        .map(|_| rng.range(-1.0, 1.0) as f32)
+        .collect();
+    let dout_buf = ctx.buffer_from("dout", &before).unwrap();
+    let mut nl = NormalLoss::new(&ctx).unwrap();
+    ctx.submit_and_wait(|cmd| {
+        nl.record(
+            cmd,
+            &cam,
+            img_buf.address(),
+            dout_buf.address(),
+            lm as f32,
+            le as f32,
+        )
+    })
+    .unwrap();
+    let after: Vec<f32> = ctx.download_all(&dout_buf).unwrap();
+    let sums = nl.read().unwrap();
+    let (_, sm, se) = normal_loss(&mean_d, &med_d, &alpha, &nrm, &cam, lm, le);
+    assert!(
+        (sums.median - sm).abs() < 1e-4 * sm.abs().max(1.0),
+        "Σ median {} vs {sm}",
+        sums.median
+    );
+    assert!(
+        (sums.mean - se).abs() < 1e-4 * se.abs().max(1.0),
+        "Σ mean {} vs {se}",
+        sums.mean
+    );
+    let l = |md: &[f64], n: &[[f64; 3]]| normal_loss(md, &med_d, &alpha, n, &cam, lm, le).0;
+    let hstep = 1e-6;
+    let (mut worst, mut scale, mut nonzero_depth_grads) = (0.0f64, 0.0f64, 0);
+    for k in 0..np {
+        // Normal channels.
+        for c in 0..3 {
+            let (mut a, mut b) = (nrm.clone(), nrm.clone());
+            a[k][c] += hstep;
+            b[k][c] -= hstep;
+            let fd = (l(&mean_d, &a) - l(&mean_d, &b)) / (2.0 * hstep);
+            let ch = dout::NX + c;
+            let g = f64::from(after[ch * np + k] - before[ch * np + k]);
+            worst = worst.max((g - fd).abs());
+            scale = scale.max(fd.abs());
+        }
+        // Mean depth (where it is a surface: a hole stays a hole).
+        let ch = dout::DEPTH;
+        let g = f64::from(after[ch * np + k] - before[ch * np + k]);
+        if mean_d[k] > 0.0 {
+            let (mut a, mut b) = (mean_d.clone(), mean_d.clone());
+            a[k] += hstep;
+            b[k] -= hstep;
+            let fd = (l(&a, &nrm) - l(&b, &nrm)) / (2.0 * hstep);
+            worst = worst.max((g - fd).abs());
+            scale = scale.max(fd.abs());
+            nonzero_depth_grads += usize::from(fd.abs() > 1e-6);
+        } else {
+            assert_eq!(g, 0.0, "pixel {k}: a hole gets no depth gradient");
+        }
+        // The other channels are left as they were.
+        for ch in [dout::R, dout::G, dout::B, dout::ALPHA] {
+            assert_eq!(after[ch * np + k], before[ch * np + k]);
+        }
+    }
+    println!(
+        "max |gpu − fd| {worst:.3e} of max |fd| {scale:.3e}; {nonzero_depth_grads} depth gradients"
+    );
+    assert!(
+        nonzero_depth_grads > np / 2,
+        "the depth gradients must be exercised"
+    );
+    assert!(
+        worst <= 2e-3 * scale,
+        "max |gpu − fd| {worst:.3e} of {scale:.3e}"
+    );
+    finish(&ctx);
+}

@@ -127,7 +127,7 @@ enum Command {
         /// with --resume).
         #[arg(long)]
         downscale: Option<f64>,
-        /// Configuration preset: synthetic, real, forward, object or quick (default: the
+        /// Configuration preset: synthetic, real, forward, object, mesh or quick (default: the
         /// data's — Blender: synthetic, COLMAP/nerfstudio: real, LLFF: forward, NeuS:
         /// object; with --resume: the run's).
         #[arg(long)]

@@ -354,6 +354,7 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
                 "iter": info.iter,
                 "loss": l.loss, "mse": l.mse, "psnr": l.psnr, "ssim": l.ssim,
                 "t_concentration": l.t_concentration, "t_inside": l.t_inside, "distortion": l.distortion, "tv": l.tv,
+                "normal_dmed": l.normal_dmed, "normal_dmean": l.normal_dmean,
                 "sh_degree": info.sh_degree, "ss": info.supersample, "entries": info.entries,
                 "voxels": trainer.voxels(), "grid_points": trainer.grid_points(),
                 "device_memory": trainer.device_memory(), "elapsed_s": el,

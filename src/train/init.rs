@@ -219,6 +219,7 @@ impl Trainer {
             adam: Adam::new(ctx)?,
             tv: Tv::new(ctx, float_atomics)?,
             loss: PixelLoss::new(ctx)?,
+            normal: super::loss::NormalLoss::new(ctx)?,
             views,
             cams,
             order: Vec::new(),

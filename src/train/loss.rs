@@ -144,3 +144,114 @@ impl PixelLoss {
         })
     }
 }
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct NormalPush {
+    r0: [f32; 4],
+    r1: [f32; 4],
+    r2: [f32; 4],
+    out_img: u64,
+    dout: u64,
+    partials: u64,
+    cy: f32,
+    w_med: f32,
+    w_mean: f32,
+    width: u32,
+    height: u32,
+    pad: u32,
+}
+push_constants!(NormalPush, kernels::TRAIN_NORMAL_LOSS);
+
+/// Sums of the last recorded frame's depth–normal terms (unweighted).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NormalSums {
+    /// Σ over pixels of `1 − N·n_med` (where the median-depth normal is defined).
+    pub median: f64,
+    /// Σ over pixels of `α² − α N·n_mean` (where the mean-depth normal is defined).
+    pub mean: f64,
+    pub pixels: u32,
+}
+
+/// The depth–normal consistency kernel (glsl/train/normal_loss.comp: the paper's mesh
+/// regularisers, median- and mean-depth terms) and its partial sums.
+pub struct NormalLoss {
+    ctx: Context,
+    kernel: Kernel,
+    partials: GrowBuffer,
+    groups: u32,
+    pixels: u32,
+}
+
+impl NormalLoss {
+    pub fn new(ctx: &Context) -> Result<NormalLoss> {
+        Ok(NormalLoss {
+            ctx: ctx.clone(),
+            kernel: Kernel::new(ctx, &kernels::TRAIN_NORMAL_LOSS)?,
+            partials: GrowBuffer::new("loss.normal-partials"),
+            groups: 0,
+            pixels: 0,
+        })
+    }
+
+    /// Records the terms of a frame of `cam` (output resolution; its image at `out_img`,
+    /// planar [`crate::raster::CHANNELS`]) with weights `lambda_median`, `lambda_mean`
+    /// (each term a mean over the pixels), ADDING the gradients to `dout`'s depth and
+    /// normal channels. Ends with a barrier.
+    pub fn record(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        cam: &crate::camera::Camera,
+        out_img: u64,
+        dout: u64,
+        lambda_median: f32,
+        lambda_mean: f32,
+    ) -> Result<()> {
+        let npix = cam.width * cam.height;
+        let groups = self.kernel.groups_1d(npix);
+        self.partials.ensure(&self.ctx, groups as u64 * 2 * 4)?;
+        let w = cam.w2c();
+        let row =
+            |r: usize, extra: f64| [w[r][0] as f32, w[r][1] as f32, w[r][2] as f32, extra as f32];
+        self.kernel.dispatch_1d(
+            cmd,
+            &NormalPush {
+                out_img,
+                dout,
+                partials: self.partials.address(),
+                r0: row(0, cam.fx),
+                r1: row(1, cam.fy),
+                r2: row(2, cam.cx),
+                cy: cam.cy as f32,
+                w_med: lambda_median / npix as f32,
+                w_mean: lambda_mean / npix as f32,
+                width: cam.width,
+                height: cam.height,
+                pad: 0,
+            },
+            npix,
+        );
+        recorder::barrier(&self.ctx, cmd);
+        self.groups = groups;
+        self.pixels = npix;
+        Ok(())
+    }
+
+    /// The sums of the last recorded frame (after it completed).
+    pub fn read(&self) -> Result<NormalSums> {
+        let parts: Vec<f32> = match self.partials.buffer() {
+            Some(b) if self.groups > 0 => self.ctx.download(b, 0, self.groups as usize * 2)?,
+            _ => Vec::new(),
+        };
+        let (mut m, mut e) = (0f64, 0f64);
+        for g in parts.chunks_exact(2) {
+            m += f64::from(g[0]);
+            e += f64::from(g[1]);
+        }
+        Ok(NormalSums {
+            median: m,
+            mean: e,
+            pixels: self.pixels,
+        })
+    }
+}

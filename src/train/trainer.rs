@@ -18,7 +18,7 @@ use rand::Rng;
 use super::backward::{Backward, EntryLosses, Gradients};
 use super::config::{Schedule, TrainConfig};
 use super::init::Moments;
-use super::loss::{LossWeights, PixelLoss};
+use super::loss::{LossWeights, NormalLoss, PixelLoss};
 use super::optim::{Adam, AdamConfig, Tv};
 use super::ssim::Ssim;
 use super::views::TrainViews;
@@ -46,6 +46,9 @@ pub struct StepLosses {
     pub t_inside: f64,
     pub distortion: f64,
     pub tv: f64,
+    /// mean(1 − N·n_med) and mean(α² − α N·n_mean) where defined (0 while inactive).
+    pub normal_dmed: f64,
+    pub normal_dmean: f64,
 }
 
 /// What one iteration did.
@@ -81,6 +84,7 @@ pub struct Trainer {
     pub(super) adam: Adam,
     pub(super) tv: Tv,
     pub(super) loss: PixelLoss,
+    pub(super) normal: NormalLoss,
     pub(super) views: TrainViews,
     pub(super) cams: Vec<Camera>,
     pub(super) rng: rand_pcg::Pcg64,
@@ -224,6 +228,16 @@ impl Trainer {
         } else {
             0.0
         };
+        let lambda_nmed = if it >= self.schedule.normal_dmed_from {
+            cfg.lambda_normal_dmed
+        } else {
+            0.0
+        };
+        let lambda_nmean = if it >= self.schedule.normal_dmean_from {
+            cfg.lambda_normal_dmean
+        } else {
+            0.0
+        };
         let lambda_tv = if it < self.schedule.tv_until {
             cfg.lambda_tv
         } else {
@@ -247,6 +261,10 @@ impl Trainer {
                     t_inside: cfg.lambda_t_inside,
                 },
             )?;
+            if lambda_nmed > 0.0 || lambda_nmean > 0.0 {
+                self.normal
+                    .record(cmd, &cam, out_addr, dout_addr, lambda_nmed, lambda_nmean)?;
+            }
             if cfg.lambda_ssim > 0.0 {
                 self.ssim.record(
                     cmd,
@@ -351,7 +369,7 @@ impl Trainer {
         }
         self.iter += 1;
         let losses = if measure {
-            Some(self.read_losses(lambda_dist, lambda_tv)?)
+            Some(self.read_losses(lambda_dist, lambda_tv, (lambda_nmed, lambda_nmean))?)
         } else {
             None
         };
@@ -384,7 +402,12 @@ impl Trainer {
         self.ctx.memory_allocated()
     }
 
-    fn read_losses(&self, lambda_dist: f32, lambda_tv: f32) -> Result<StepLosses> {
+    fn read_losses(
+        &self,
+        lambda_dist: f32,
+        lambda_tv: f32,
+        lambda_normal: (f32, f32),
+    ) -> Result<StepLosses> {
         let cfg = &self.cfg;
         let sums = self.loss.read()?;
         let mse = sums.squared_error / (3.0 * sums.out_pixels as f64);
@@ -401,6 +424,13 @@ impl Trainer {
         } else {
             0.0
         };
+        let (nmed, nmean) = if lambda_normal.0 > 0.0 || lambda_normal.1 > 0.0 {
+            let s = self.normal.read()?;
+            let n = f64::from(s.pixels.max(1));
+            (s.median / n, s.mean / n)
+        } else {
+            (0.0, 0.0)
+        };
         let ssim_term = if ssim.is_finite() { 1.0 - ssim } else { 0.0 };
         // The per-point RGB term is folded into the backward and not measured.
         let loss = cfg.lambda_mse as f64 * mse
@@ -408,7 +438,9 @@ impl Trainer {
             + cfg.lambda_t as f64 * tconc
             + cfg.lambda_t_inside as f64 * tin
             + lambda_dist as f64 * dist
-            + lambda_tv as f64 * tv;
+            + lambda_tv as f64 * tv
+            + f64::from(lambda_normal.0) * nmed
+            + f64::from(lambda_normal.1) * nmean;
         Ok(StepLosses {
             loss,
             mse,
@@ -416,6 +448,8 @@ impl Trainer {
             ssim,
             t_concentration: tconc,
             t_inside: tin,
+            normal_dmed: nmed,
+            normal_dmean: nmean,
             distortion: dist,
             tv,
         })
