@@ -590,3 +590,23 @@ fn vertex_colors_come_from_the_voxel_inside() {
     }
     assert_eq!(cols[2], [128; 3], "outside every voxel: grey");
 }
+
+/// The default mesh level is the one most of the model's voxels have (finer on a tie).
+#[test]
+fn default_mesh_level_is_the_most_common_level() {
+    use svraster::mesh::extract::LevelHistogram;
+    let h = |v: &[(u8, usize)]| LevelHistogram(v.iter().copied().collect()).default_level();
+    assert_eq!(
+        h(&[(8, 52), (11, 114_842), (12, 251_395), (14, 51_848)]),
+        12
+    );
+    assert_eq!(h(&[(5, 10), (6, 10)]), 6);
+    assert_eq!(h(&[]), 1);
+    let scene = uniform_scene(3);
+    let hist = svraster::mesh::extract::level_histogram(&scene, Some(&([-1.0; 3], [-0.5; 3])));
+    assert_eq!(
+        hist.0.get(&3),
+        Some(&8),
+        "the 2×2×2 level-3 voxels in [-1, -0.5]³"
+    );
+}

@@ -67,29 +67,19 @@ pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
     };
     opts.validate()?;
     // The model's levels in the region, so a user sees what --level means.
-    let mut hist = std::collections::BTreeMap::<u8, usize>::new();
-    for (&l, &p) in scene.octlevel.iter().zip(&scene.octpath) {
-        let (o, s) = svraster::scene::voxel_fine_box(p, u32::from(l));
-        let lo = scene.fine_to_world(o);
-        let hi = scene.fine_to_world(o.map(|x| x + s));
-        if region
-            .as_ref()
-            .is_none_or(|r| (0..3).all(|k| hi[k] > r.0[k] && lo[k] < r.1[k]))
-        {
-            *hist.entry(l).or_default() += 1;
-        }
-    }
-    if hist.is_empty() {
+    let hist = mesh::extract::level_histogram(&scene, region.as_ref());
+    if hist.0.is_empty() {
         bail!(
             "the mesh region holds no voxel of the model: check --bbox (world coordinates, \
              min then max corner)"
         );
     }
-    let level = a
-        .level
-        .unwrap_or_else(|| hist.keys().next_back().map_or(1, |&l| u32::from(l)));
-    eprintln!("model voxels in the mesh region by level (--level; default the finest):");
-    for (l, n) in &hist {
+    let level = a.level.unwrap_or_else(|| hist.default_level());
+    eprintln!(
+        "model voxels in the mesh region by level (--level; default: the level most of \
+         them have):"
+    );
+    for (l, n) in &hist.0 {
         let size = scene
             .world
             .length_to_world(f64::from(scene.extent) * 0.5f64.powi(i32::from(*l)));

@@ -231,8 +231,9 @@ enum Command {
         /// directory, else 1).
         #[arg(long)]
         downscale: Option<f64>,
-        /// Octree level of the marching-cubes voxels (default: the model's finest level in
-        /// the region; each level down halves the resolution and quarters the triangles).
+        /// Octree level of the marching-cubes voxels (default: the level most of the
+        /// model's voxels in the region have; each level down halves the resolution and
+        /// quarters the triangles).
         #[arg(long)]
         level: Option<u32>,
         /// Truncation band of the signed distance, in voxels of the mesh level.

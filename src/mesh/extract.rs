@@ -44,7 +44,8 @@ pub enum DepthKind {
 /// Mesh extraction settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MeshOptions {
-    /// Octree level of the marching-cubes voxels (None: the finest level among the
+    /// Octree level of the marching-cubes voxels (None: [`LevelHistogram::default_level`],
+    /// the level most of the model's voxels in the region have;
     /// model's voxels in the region).
     pub level: Option<u32>,
     /// Truncation band of the final fusion, in voxels of the mesh level.
@@ -100,6 +101,35 @@ impl MeshOptions {
         }
         Ok(())
     }
+}
+
+/// The model's voxels in the mesh region, by level.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LevelHistogram(pub std::collections::BTreeMap<u8, usize>);
+
+impl LevelHistogram {
+    /// The level holding the most voxels (the finer one on a tie): the resolution the
+    /// model itself settled on for most of its surfaces. (The finest level is often a
+    /// few percent of the voxels, and meshing everything at it multiplies the work: on
+    /// the garden at 160², level 14 held 52 k of 560 k voxels and meshed into 8.9 M
+    /// triangles in 240 s.)
+    pub fn default_level(&self) -> u32 {
+        self.0
+            .iter()
+            .max_by_key(|(l, n)| (**n, **l))
+            .map_or(1, |(l, _)| u32::from(*l))
+    }
+}
+
+/// The levels of `scene`'s voxels overlapping `region` (model frame).
+pub fn level_histogram(scene: &Scene, region: Option<&([f64; 3], [f64; 3])>) -> LevelHistogram {
+    let mut h = std::collections::BTreeMap::new();
+    for (&l, &p) in scene.octlevel.iter().zip(&scene.octpath) {
+        if region.is_none_or(|r| overlaps(scene, l, p, r)) {
+            *h.entry(l).or_default() += 1;
+        }
+    }
+    LevelHistogram(h)
 }
 
 /// What an extraction did.
@@ -202,12 +232,9 @@ pub fn extract(
                 .into(),
         ));
     }
-    let finest = in_region
-        .iter()
-        .map(|&i| u32::from(scene.octlevel[i]))
-        .max()
-        .unwrap_or(1);
-    let level = opts.level.unwrap_or(finest);
+    let level = opts
+        .level
+        .unwrap_or_else(|| level_histogram(scene, opts.region.as_ref()).default_level());
     if !(1..=MAX_LEVEL).contains(&level) {
         return Err(Error::Invalid(format!(
             "mesh level {level} is outside 1..={MAX_LEVEL}"
