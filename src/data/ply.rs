@@ -9,7 +9,7 @@ use std::path::Path;
 use crate::{Error, Result};
 
 /// Byte size of a PLY scalar type.
-fn type_size(t: &str) -> Option<usize> {
+pub(crate) fn type_size(t: &str) -> Option<usize> {
     Some(match t {
         "char" | "uchar" | "int8" | "uint8" => 1,
         "short" | "ushort" | "int16" | "uint16" => 2,
@@ -19,6 +19,35 @@ fn type_size(t: &str) -> Option<usize> {
     })
 }
 
+/// The header of a PLY file's `bytes` (read from `path`, for messages) and its body:
+/// errors when there is no `end_header` line or the file does not start with `ply`.
+pub(crate) fn split_header<'a>(bytes: &'a [u8], path: &Path) -> Result<(&'a str, &'a [u8])> {
+    let bad = |m: &str| Error::Invalid(format!("{}: {m}", path.display()));
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .ok_or_else(|| bad("no `end_header` line: not a PLY file"))?;
+    let header = std::str::from_utf8(&bytes[..end]).map_err(|_| bad("the header is not text"))?;
+    if header.lines().next().map(str::trim) != Some("ply") {
+        return Err(bad("does not start with `ply`"));
+    }
+    Ok((header, &bytes[end + 11..]))
+}
+
+/// A little-endian scalar of PLY type `t` (its [`type_size`] bytes of `b`) as f64.
+pub(crate) fn le_value(t: &str, b: &[u8]) -> f64 {
+    match t {
+        "char" | "int8" => b[0] as i8 as f64,
+        "uchar" | "uint8" => b[0] as f64,
+        "short" | "int16" => i16::from_le_bytes([b[0], b[1]]) as f64,
+        "ushort" | "uint16" => u16::from_le_bytes([b[0], b[1]]) as f64,
+        "int" | "int32" => i32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+        "uint" | "uint32" => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+        "float" | "float32" => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+        _ => f64::from_le_bytes(b[..8].try_into().expect("8 bytes")),
+    }
+}
+
 /// Reads the vertex positions of the PLY file at `path`.
 pub fn read_points(path: &Path) -> Result<Vec<[f64; 3]>> {
     let bytes = std::fs::read(path).map_err(|error| Error::Io {
@@ -26,17 +55,8 @@ pub fn read_points(path: &Path) -> Result<Vec<[f64; 3]>> {
         error,
     })?;
     let bad = |m: String| Error::Invalid(format!("{}: {m}", path.display()));
-    let end = bytes
-        .windows(11)
-        .position(|w| w == b"end_header\n")
-        .ok_or_else(|| bad("no `end_header` line: not a PLY file".into()))?;
-    let header =
-        std::str::from_utf8(&bytes[..end]).map_err(|_| bad("the header is not text".into()))?;
-    let body = &bytes[end + 11..];
-    let mut lines = header.lines().map(str::trim);
-    if lines.next() != Some("ply") {
-        return Err(bad("does not start with `ply`".into()));
-    }
+    let (header, body) = split_header(&bytes, path)?;
+    let lines = header.lines().map(str::trim).skip(1);
     let mut format = "";
     let mut count = None;
     let mut props: Vec<(String, String)> = Vec::new();
@@ -122,17 +142,7 @@ pub fn read_points(path: &Path) -> Result<Vec<[f64; 3]>> {
                 }
                 a
             };
-            let a = arr(sizes[i]);
-            match props[i].0.as_str() {
-                "char" | "int8" => a[0] as i8 as f64,
-                "uchar" | "uint8" => a[0] as f64,
-                "short" | "int16" => i16::from_le_bytes([a[0], a[1]]) as f64,
-                "ushort" | "uint16" => u16::from_le_bytes([a[0], a[1]]) as f64,
-                "int" | "int32" => i32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
-                "uint" | "uint32" => u32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
-                "float" | "float32" => f32::from_le_bytes([a[0], a[1], a[2], a[3]]) as f64,
-                _ => f64::from_le_bytes(a),
-            }
+            le_value(&props[i].0, &arr(sizes[i]))
         };
         for rec in body.chunks_exact(stride).take(n) {
             points.push([read(rec, xyz[0]), read(rec, xyz[1]), read(rec, xyz[2])]);

@@ -101,18 +101,23 @@ pub struct TriMesh {
 }
 
 impl TriMesh {
+    /// `(b − a) × (c − a)` of triangle `t`: twice its area along its normal.
+    fn face_cross(&self, t: &[u32; 3]) -> [f64; 3] {
+        let [a, b, c] = t.map(|i| self.positions[i as usize]);
+        let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
+        let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
+        [
+            u[1] * v[2] - u[2] * v[1],
+            u[2] * v[0] - u[0] * v[2],
+            u[0] * v[1] - u[1] * v[0],
+        ]
+    }
+
     /// Area-weighted vertex normals (unit; zero for a vertex of degenerate triangles only).
     pub fn vertex_normals(&self) -> Vec<[f64; 3]> {
         let mut n = vec![[0.0f64; 3]; self.positions.len()];
         for t in &self.triangles {
-            let [a, b, c] = t.map(|i| self.positions[i as usize]);
-            let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-            let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-            let f = [
-                u[1] * v[2] - u[2] * v[1],
-                u[2] * v[0] - u[0] * v[2],
-                u[0] * v[1] - u[1] * v[0],
-            ];
+            let f = self.face_cross(t);
             for &i in t {
                 for k in 0..3 {
                     n[i as usize][k] += f[k];
@@ -133,14 +138,7 @@ impl TriMesh {
         self.triangles
             .iter()
             .map(|t| {
-                let [a, b, c] = t.map(|i| self.positions[i as usize]);
-                let u = [b[0] - a[0], b[1] - a[1], b[2] - a[2]];
-                let v = [c[0] - a[0], c[1] - a[1], c[2] - a[2]];
-                let f = [
-                    u[1] * v[2] - u[2] * v[1],
-                    u[2] * v[0] - u[0] * v[2],
-                    u[0] * v[1] - u[1] * v[0],
-                ];
+                let f = self.face_cross(t);
                 0.5 * (f[0] * f[0] + f[1] * f[1] + f[2] * f[2]).sqrt()
             })
             .sum()

@@ -91,16 +91,8 @@ pub fn read(path: &Path) -> Result<PositionsAndTriangles> {
         error,
     })?;
     let bad = |m: String| Error::Invalid(format!("{}: {m}", path.display()));
-    let end = bytes
-        .windows(11)
-        .position(|w| w == b"end_header\n")
-        .ok_or_else(|| bad("no `end_header` line: not a PLY file".into()))?;
-    let header =
-        std::str::from_utf8(&bytes[..end]).map_err(|_| bad("the header is not text".into()))?;
-    let mut lines = header.lines().map(str::trim);
-    if lines.next() != Some("ply") {
-        return Err(bad("does not start with `ply`".into()));
-    }
+    let (header, body) = crate::data::ply::split_header(&bytes, path)?;
+    let lines = header.lines().map(str::trim).skip(1);
     // (name, count, properties: (name, type, list count type))
     type Prop = (String, String, Option<String>);
     let mut elements: Vec<(String, usize, Vec<Prop>)> = Vec::new();
@@ -133,27 +125,11 @@ pub fn read(path: &Path) -> Result<PositionsAndTriangles> {
         }
     }
     let size = |t: &str| -> Result<usize> {
-        Ok(match t {
-            "char" | "uchar" | "int8" | "uint8" => 1,
-            "short" | "ushort" | "int16" | "uint16" => 2,
-            "int" | "uint" | "int32" | "uint32" | "float" | "float32" => 4,
-            "double" | "float64" => 8,
-            _ => return Err(bad(format!("unknown property type `{t}`"))),
-        })
+        crate::data::ply::type_size(t).ok_or_else(|| bad(format!("unknown property type `{t}`")))
     };
-    let value = |t: &str, b: &[u8]| -> f64 {
-        match t {
-            "char" | "int8" => f64::from(b[0] as i8),
-            "uchar" | "uint8" => f64::from(b[0]),
-            "short" | "int16" => f64::from(i16::from_le_bytes([b[0], b[1]])),
-            "ushort" | "uint16" => f64::from(u16::from_le_bytes([b[0], b[1]])),
-            "int" | "int32" => f64::from(i32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-            "uint" | "uint32" => f64::from(u32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-            "float" | "float32" => f64::from(f32::from_le_bytes([b[0], b[1], b[2], b[3]])),
-            _ => f64::from_le_bytes(b[..8].try_into().unwrap()),
-        }
-    };
-    let mut pos = end + 11;
+    let value = crate::data::ply::le_value;
+    let bytes = body;
+    let mut pos = 0;
     let short = || bad("the file ends inside its data (truncated?)".into());
     let (mut xyz, mut tris) = (Vec::new(), Vec::new());
     for (name, count, props) in &elements {
