@@ -75,6 +75,10 @@ pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
         );
     }
     let level = a.level.unwrap_or_else(|| hist.default_level());
+    let opts = MeshOptions {
+        level: Some(level),
+        ..opts
+    };
     eprintln!(
         "model voxels in the mesh region by level (--level; default: the level most of \
          them have):"

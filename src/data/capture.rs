@@ -61,6 +61,31 @@ pub struct Shot {
     pub c2w: [[f64; 4]; 3],
 }
 
+/// Photo file extensions captures are read with (PNG and JPEG).
+pub const IMAGE_EXTENSIONS: [&str; 6] = ["png", "jpg", "JPG", "jpeg", "PNG", "JPEG"];
+
+/// Whether view `i` (in name order) belongs to `split`: every `holdout`-th view (0, N,
+/// 2N, …) is `test`, the rest `train`; `all` is every view.
+pub fn in_split(i: usize, split: &str, holdout: usize) -> bool {
+    let test = holdout > 0 && i.is_multiple_of(holdout);
+    match split {
+        "train" => !test,
+        "test" => test,
+        _ => true,
+    }
+}
+
+/// Errors unless `split` is one a capture has (train, test, all).
+pub fn check_split(split: &str, holdout: usize) -> Result<()> {
+    if ["train", "test", "all"].contains(&split) {
+        Ok(())
+    } else {
+        Err(Error::Invalid(format!(
+            "a capture has the splits train, test (every {holdout}th view) and all, not `{split}`"
+        )))
+    }
+}
+
 /// The image folder of a capture in `dir`.
 pub fn image_folder(dir: &Path, choice: Option<&str>) -> Result<PathBuf> {
     if let Some(c) = choice {
@@ -223,22 +248,10 @@ pub fn load_shots_from(
     let keep: Vec<Shot> = shots
         .into_iter()
         .enumerate()
-        .filter(|(i, _)| {
-            let test = opts.holdout > 0 && i % opts.holdout == 0;
-            match split {
-                "train" => !test,
-                "test" => test,
-                _ => true,
-            }
-        })
+        .filter(|(i, _)| in_split(*i, split, opts.holdout))
         .map(|(_, s)| s)
         .collect();
-    if !["train", "test", "all"].contains(&split) {
-        return Err(Error::Invalid(format!(
-            "a capture has the splits train, test (every {}th view) and all, not `{split}`",
-            opts.holdout
-        )));
-    }
+    check_split(split, opts.holdout)?;
     let frames: Vec<Frame> = keep
         .par_iter()
         .map(|s| load_frame(folder, s, opts.downscale))
@@ -322,7 +335,7 @@ fn find_image(folder: &Path, name: &str) -> Result<PathBuf> {
     if p.is_file() {
         return Ok(p);
     }
-    for ext in ["png", "jpg", "JPG", "jpeg", "PNG", "JPEG"] {
+    for ext in IMAGE_EXTENSIONS {
         let q = p.with_extension(ext);
         if q.is_file() {
             return Ok(q);

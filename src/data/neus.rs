@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
-use super::capture::natural_cmp;
+use super::capture::{check_split, in_split, natural_cmp, IMAGE_EXTENSIONS};
 use super::image::load_rgba;
 use super::{area_resample, downscaled_size, Camera, Dataset, Frame};
 use crate::{Error, Result};
@@ -150,7 +150,7 @@ fn image_files(dir: &Path) -> Result<Vec<PathBuf>> {
         .filter(|p| {
             p.extension()
                 .and_then(|e| e.to_str())
-                .is_some_and(|e| ["png", "jpg", "jpeg", "PNG", "JPG", "JPEG"].contains(&e))
+                .is_some_and(|e| IMAGE_EXTENSIONS.contains(&e))
         })
         .collect();
     files.sort_by(|a, b| natural_cmp(&a.to_string_lossy(), &b.to_string_lossy()));
@@ -217,16 +217,6 @@ fn views(
     Ok((out, sphere))
 }
 
-/// Whether `keep` view `i` of a split (every `holdout`-th is `test`).
-fn in_split(i: usize, split: &str, holdout: usize) -> bool {
-    let test = holdout > 0 && i.is_multiple_of(holdout);
-    match split {
-        "train" => !test,
-        "test" => test,
-        _ => true,
-    }
-}
-
 /// Loads split `split` of the NeuS capture in `dir`: photos (composited over
 /// `background` with their masks), downscaled by `downscale`.
 pub fn load(
@@ -236,11 +226,7 @@ pub fn load(
     background: [f32; 3],
     holdout: usize,
 ) -> Result<Dataset> {
-    if !["train", "test", "all"].contains(&split) {
-        return Err(Error::Invalid(format!(
-            "a capture has the splits train, test (every {holdout}th view) and all, not `{split}`"
-        )));
-    }
+    check_split(split, holdout)?;
     if !downscale.is_finite() || downscale < 1.0 {
         return Err(Error::Invalid(format!(
             "downscale must be ≥ 1, got {downscale}"

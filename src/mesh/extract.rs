@@ -29,7 +29,9 @@ use super::tsdf::{DepthView, FuseParams, TsdfFuser};
 use crate::camera::Camera;
 use crate::gpu::Context;
 use crate::raster::{RenderOptions, Renderer};
-use crate::scene::{key_coords, voxel_corner_keys, voxel_fine_box, Scene, SceneGpu, MAX_LEVEL};
+use crate::scene::{
+    corner_key, key_coords, voxel_corner_keys, voxel_fine_box, Scene, SceneGpu, MAX_LEVEL,
+};
 use crate::{Error, Result};
 
 /// Which rendered depth is fused.
@@ -182,9 +184,9 @@ pub fn render_depths(
     };
     let mut out = Vec::with_capacity(cams.len());
     for (i, cam) in cams.iter().enumerate() {
-        let (img, _) = r.render(&gpu, cam, &opts)?;
+        let (mut img, _) = r.render(&gpu, cam, &opts)?;
         let depth = match kind {
-            DepthKind::Median => img.depth_median.clone(),
+            DepthKind::Median => std::mem::take(&mut img.depth_median),
             DepthKind::Mean => img
                 .depth
                 .iter()
@@ -218,23 +220,15 @@ pub fn extract(
     opts: &MeshOptions,
 ) -> Result<Extraction> {
     opts.validate()?;
-    let in_region: Vec<usize> = (0..scene.num_voxels())
-        .filter(|&i| {
-            opts.region
-                .as_ref()
-                .is_none_or(|r| overlaps(scene, scene.octlevel[i], scene.octpath[i], r))
-        })
-        .collect();
-    if in_region.is_empty() {
+    let hist = level_histogram(scene, opts.region.as_ref());
+    if hist.0.is_empty() {
         return Err(Error::Invalid(
             "the mesh region holds no voxel of the model: check --bbox (world coordinates, \
              min then max corner)"
                 .into(),
         ));
     }
-    let level = opts
-        .level
-        .unwrap_or_else(|| level_histogram(scene, opts.region.as_ref()).default_level());
+    let level = opts.level.unwrap_or_else(|| hist.default_level());
     if !(1..=MAX_LEVEL).contains(&level) {
         return Err(Error::Invalid(format!(
             "mesh level {level} is outside 1..={MAX_LEVEL}"
@@ -257,12 +251,12 @@ pub fn extract(
     let n = 1i64 << level;
     let mut voxels: Vec<u64> = Vec::with_capacity(cells.len() * 4);
     for &c in &cells {
-        let ijk = unpack(c);
+        let ijk = key_coords(c);
         for d in 0..27i64 {
             let o = [d / 9 - 1, (d / 3) % 3 - 1, d % 3 - 1];
             let q: [i64; 3] = std::array::from_fn(|a| i64::from(ijk[a]) + o[a]);
             if q.iter().all(|&x| (0..n).contains(&x)) {
-                voxels.push(pack(q.map(|x| x as u32)));
+                voxels.push(corner_key(q.map(|x| x as u32)));
             }
         }
         if voxels.len() as u64 > 4 * opts.max_voxels {
@@ -285,7 +279,7 @@ pub fn extract(
         .map(|&c| {
             (
                 level as u8,
-                crate::scene::octpath_from_ijk(unpack(c), level),
+                crate::scene::octpath_from_ijk(key_coords(c), level),
             )
         })
         .collect();
@@ -327,14 +321,6 @@ pub fn extract(
         grid_keys: keys,
         tsdf,
     })
-}
-
-fn pack(c: [u32; 3]) -> u64 {
-    (u64::from(c[0]) << 34) | (u64::from(c[1]) << 17) | u64::from(c[2])
-}
-
-fn unpack(k: u64) -> [u32; 3] {
-    key_coords(k)
 }
 
 /// The level-`level` cells (packed `i, j, k`) holding a surface sample: every pixel of
@@ -382,7 +368,7 @@ fn surface_cells(
                     }
                     let q: [f64; 3] = std::array::from_fn(|a| ((p[a] - lo[a]) / cell).floor());
                     if q.iter().all(|&x| x >= 0.0 && x < n) {
-                        out.push(pack(q.map(|x| x as u32)));
+                        out.push(corner_key(q.map(|x| x as u32)));
                         count += 1;
                     }
                 }

@@ -60,30 +60,8 @@ pub fn rasterize(cam: &Camera, positions: &[[f64; 3]], triangles: &[[u32; 3]]) -
         } else {
             0.0
         };
-        let x0 = s
-            .iter()
-            .map(|p| p[0])
-            .fold(f64::INFINITY, f64::min)
-            .floor()
-            .max(0.0) as usize;
-        let x1 = s
-            .iter()
-            .map(|p| p[0])
-            .fold(f64::NEG_INFINITY, f64::max)
-            .ceil()
-            .min(w as f64) as usize;
-        let y0 = s
-            .iter()
-            .map(|p| p[1])
-            .fold(f64::INFINITY, f64::min)
-            .floor()
-            .max(0.0) as usize;
-        let y1 = s
-            .iter()
-            .map(|p| p[1])
-            .fold(f64::NEG_INFINITY, f64::max)
-            .ceil()
-            .min(h as f64) as usize;
+        let (x0, x1) = span(s.map(|p| p[0]), w);
+        let (y0, y1) = span(s.map(|p| p[1]), h);
         for py in y0..y1 {
             for px in x0..x1 {
                 let (x, y) = (px as f64 + 0.5, py as f64 + 0.5);
@@ -111,6 +89,23 @@ pub fn rasterize(cam: &Camera, positions: &[[f64; 3]], triangles: &[[u32; 3]]) -
         depth,
         shade,
     }
+}
+
+/// The pixel range `[lo, hi)` covering coordinates `v`, clamped to `0..n`.
+fn span(v: [f64; 3], n: usize) -> (usize, usize) {
+    let lo = v
+        .iter()
+        .copied()
+        .fold(f64::INFINITY, f64::min)
+        .floor()
+        .max(0.0);
+    let hi = v
+        .iter()
+        .copied()
+        .fold(f64::NEG_INFINITY, f64::max)
+        .ceil()
+        .min(n as f64);
+    (lo as usize, hi as usize)
 }
 
 /// Intersection over union of the covered pixels and the pixels where `mask` ≥ 0.5.
