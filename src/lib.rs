@@ -35,6 +35,8 @@ pub use error::{Error, Result};
 pub use gpu::Context;
 /// Records a frame of a scene into a command buffer, or renders and reads it back.
 pub use raster::{RenderOptions, Renderer};
+/// Records frames into a host engine's command buffers, images and depth (embedding).
+pub use raster::host::{HostRenderer, HostTarget, HostView};
 /// Exclusive prefix sum of u32 counts on the device.
 pub use scan::PrefixScan;
 /// A sparse-voxel model (host) and its device copy.

@@ -45,6 +45,8 @@ void main() {
     vec3 inv_rd = 1.0 / rd;
     uint sign = ray_sign_bits(rd);
     float t_near = P.near * rd_norm;
+    // The host's surface ends the ray (raster/host.rs); infinity without host depth.
+    float t_far = inside ? host_t_far(P, pix, rd_norm) : 0.0;
 
     vec3 C = vec3(0.0), N = vec3(0.0);
     float T = 1.0, D = 0.0, med_t = 0.0;
@@ -132,7 +134,10 @@ void main() {
             vec4 cs = e.cs;
             float h = 0.5 * cs.w;
             vec2 ab = ray_aabb(cs.xyz - h, cs.xyz + h, rd, inv_rd);
-            float a = max(ab.x, t_near), b = ab.y;
+            float a = max(ab.x, t_near), b = min(ab.y, t_far);
+            // A voxel the ray enters at or behind the host's surface: so do all later
+            // ones of this octant (exact depth order), the pixel is done.
+            if (need && a >= t_far && ab.x <= ab.y) done = true;
             need = need && a <= b;
 #ifdef COUNTERS
             if (need) c_cross += 1u;

@@ -36,6 +36,9 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     vec2 filter_radius;   // downsample filter radius, x and y (output pixels)
     ivec3 cam_int;        // camera position in finest-grid units: integer part
     int pad1;
+    // Host depth convention (raster/host.rs): a host depth value z at camera-space
+    // direction (x', y', 1) and camera depth d satisfies z = dot(xyz, (x', y', 1)) + w / d.
+    vec4 depth_map;
     // scene
     U64s octpath; U32s level; U32s corners; F32s geo; F32s sh0; F32s shs;
     // per voxel (frame)
@@ -55,6 +58,9 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     // optional (0: off; read only by the COUNTERS kernel variants): work counters, u64
     // words CTR_FWD + CTR_* (forward composite) and CTR_BWD + CTR_* (backward)
     U64s counters;
+    // optional (0: off): the host's depth values at output resolution (row-major,
+    // out_size), converted with depth_map: each ray ends at the host's surface
+    F32s host_depth;
 };
 
 // Work counters (bench): per walk, subgroup loop trips over entries; trips where at least
@@ -78,6 +84,10 @@ const uint STATS_WORDS = 16u;
 const uint FLAG_ENTRY_OVERFLOW = 1u;  // more entries than the key buffers hold
 const uint FLAG_NEED_CHUNKS = 2u;     // a tile list is longer than the chunks recorded
 
+// Host output formats and depth modes (raster/host_output.comp).
+const uint HOST_RGBA8_UNORM = 0u, HOST_RGBA8_SRGB = 1u, HOST_RGBA16F = 2u, HOST_RGBA32F = 3u;
+const uint HOST_DEPTH_MEDIAN = 0u, HOST_DEPTH_MEAN = 1u;
+
 // Channels of the planar image buffers.
 const uint CH_R = 0u, CH_G = 1u, CH_B = 2u, CH_T = 3u, CH_DEPTH = 4u, CH_DMED = 5u,
            CH_NX = 6u, CH_NY = 7u, CH_NZ = 8u, IMG_CHANNELS = 9u;
@@ -98,6 +108,20 @@ void pixel_ray(FrameParams P, uvec2 pix, out vec3 rd, out float rd_norm) {
     vec3 w = vec3(dot(P.c2w[0].xyz, cam), dot(P.c2w[1].xyz, cam), dot(P.c2w[2].xyz, cam));
     rd = w / rd_norm;
     rd = mix(rd, vec3(0.0), lessThan(abs(rd), vec3(1e-20)));
+}
+
+// Ray distance at which pixel (px, py) of the render meets the host's depth (infinity
+// without host depth, or where the host value maps to no positive camera depth).
+float host_t_far(FrameParams P, uvec2 pix, float rd_norm) {
+    float inf = uintBitsToFloat(0x7f800000u);
+    if (uint64_t(P.host_depth) == 0ul) return inf;
+    uvec2 op = min(uvec2(vec2(pix) / P.ss_scale), P.out_size - 1u);
+    float z = P.host_depth.v[op.y * P.out_size.x + op.x];
+    vec2 xy = (vec2(pix) + 0.5 - P.intr.zw) / P.intr.xy;
+    float a = dot(P.depth_map.xyz, vec3(xy, 1.0));
+    float d = P.depth_map.w / (z - a);
+    // NaN, negative (beyond infinity) and infinite depths: no cut.
+    return d > 0.0 && d < inf ? d * rd_norm : inf;
 }
 
 // Pixel of local invocation `l` in a 16x16 tile: Morton order, so a subgroup of 8

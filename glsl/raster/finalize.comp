@@ -39,7 +39,7 @@ void main() {
         for (uint c = 0u; c < 8u; ++c) g[c] = P.geo8.v[8u * v + c];
         float h = 0.5 * cs.w;
         vec2 ab = ray_aabb(cs.xyz - h, cs.xyz + h, rd, 1.0 / rd);
-        float a = max(ab.x, P.near * rd_norm), b = ab.y;
+        float a = max(ab.x, P.near * rd_norm), b = min(ab.y, host_t_far(P, pix, rd_norm));
         float step_sz = (b - a) * (1.0 / float(n_samp));
         vec3 vmin = cs.xyz - h;
         dmed = a - 0.5 * step_sz;

@@ -25,9 +25,12 @@
 //! screen rectangle of a voxel crossing the near plane is that of its clipped part
 //! (the reference uses only its front corners, which can miss pixels).
 
+use std::sync::Arc;
+
 use ash::vk;
 
 mod counters;
+pub mod host;
 mod params;
 mod plan;
 mod readback;
@@ -94,9 +97,8 @@ impl Default for RenderOptions {
     }
 }
 
-/// The forward rasterizer with its kernels and growable frame buffers.
-pub struct Renderer {
-    ctx: Context,
+/// The rasterizer's pipelines (immutable once made; shared between renderers).
+struct RasterKernels {
     preprocess: Kernel,
     setup: Kernel,
     emit: Kernel,
@@ -105,6 +107,23 @@ pub struct Renderer {
     composite: [[Kernel; 3]; 3],
     finalize: Kernel,
     downsample: Kernel,
+    host_output: Kernel,
+}
+
+/// Host-frame settings of the frames recorded from now on (see `host.rs`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct HostFrame {
+    /// Device address of the host depth values at output resolution (0: none).
+    pub(crate) depth: u64,
+    /// `host::DepthConvention` as (x', y', 1) coefficients and the 1/d coefficient.
+    pub(crate) depth_map: [f32; 4],
+}
+
+/// The forward rasterizer with its kernels and growable frame buffers.
+pub struct Renderer {
+    ctx: Context,
+    /// The pipelines, shared by renderers made with [`Renderer::sharing`].
+    k: Arc<RasterKernels>,
     scan: Option<PrefixScan>,
     sort: Option<RadixSort>,
     voxel_cap: u32,
@@ -139,12 +158,13 @@ pub struct Renderer {
     maxw_target: u64,
     counters: Option<Buffer>,
     counters_on: bool,
+    /// Frames are recorded for a host (transparent background, host depth); see `host.rs`.
+    host: Option<HostFrame>,
 }
 
 impl Renderer {
     pub fn new(ctx: &Context) -> Result<Renderer> {
-        Ok(Renderer {
-            ctx: ctx.clone(),
+        let k = RasterKernels {
             preprocess: Kernel::new(ctx, &kernels::RASTER_PREPROCESS)?,
             setup: Kernel::new(ctx, &kernels::RASTER_FRAME_SETUP)?,
             emit: Kernel::new(ctx, &kernels::RASTER_EMIT_KEYS)?,
@@ -168,6 +188,27 @@ impl Renderer {
             ],
             finalize: Kernel::new(ctx, &kernels::RASTER_FINALIZE)?,
             downsample: Kernel::new(ctx, &kernels::RASTER_DOWNSAMPLE)?,
+            host_output: Kernel::new(ctx, &kernels::RASTER_HOST_OUTPUT)?,
+        };
+        Self::with_kernels(ctx, Arc::new(k))
+    }
+
+    /// A renderer with its own frame buffers that shares `other`'s pipelines (one per
+    /// frame in flight, without compiling the kernels again).
+    pub fn sharing(other: &Renderer) -> Result<Renderer> {
+        Self::with_kernels(&other.ctx, other.k.clone())
+    }
+
+    fn with_kernels(ctx: &Context, k: Arc<RasterKernels>) -> Result<Renderer> {
+        let stats = ctx.buffer("raster.stats", STATS_WORDS as u64 * 4, Memory::Device)?;
+        let params = ctx.buffer(
+            "raster.params",
+            std::mem::size_of::<FrameParams>() as u64,
+            Memory::Device,
+        )?;
+        Ok(Renderer {
+            ctx: ctx.clone(),
+            k,
             scan: None,
             sort: None,
             voxel_cap: 0,
@@ -193,16 +234,13 @@ impl Renderer {
             out_img: GrowBuffer::new("raster.out-image"),
             last_id: GrowBuffer::new("raster.last-contributor"),
             aux: GrowBuffer::new("raster.aux"),
-            stats: ctx.buffer("raster.stats", STATS_WORDS as u64 * 4, Memory::Device)?,
-            params: ctx.buffer(
-                "raster.params",
-                std::mem::size_of::<FrameParams>() as u64,
-                Memory::Device,
-            )?,
+            stats,
+            params,
             last: None,
             maxw_target: 0,
             counters: None,
             counters_on: false,
+            host: None,
         })
     }
 
@@ -362,11 +400,12 @@ impl Renderer {
                 cam_fine[2].1 as f32,
             ],
             unit: unit as f32,
-            bg: [
-                scene.background[0],
-                scene.background[1],
-                scene.background[2],
-            ],
+            // Host frames are premultiplied over the host's own image: no background.
+            bg: if self.host.is_some() {
+                [0.0; 3]
+            } else {
+                scene.background
+            },
             near: cam.near as f32,
             render_size: [plan.render_w, plan.render_h],
             tiles: [plan.render_w.div_ceil(TILE), plan.render_h.div_ceil(TILE)],
@@ -385,6 +424,7 @@ impl Renderer {
             filter_radius: [sx.max(1.0), sy.max(1.0)],
             cam_int: [cam_fine[0].0, cam_fine[1].0, cam_fine[2].0],
             pad1: 0,
+            depth_map: self.host.map_or([0.0; 4], |h| h.depth_map),
             octpath: scene.octpath.address(),
             level: scene.level.address(),
             corners: scene.corners.address(),
@@ -413,6 +453,7 @@ impl Renderer {
             aux: self.aux.address(),
             maxw: self.maxw_target,
             counters: self.counters_address(),
+            host_depth: self.host.map_or(0, |h| h.depth),
         };
         let dev = ctx.device();
         let pa = ParamsPush {
@@ -431,7 +472,7 @@ impl Renderer {
         }
         recorder::barrier(&ctx, cmd);
         let n = scene.voxels;
-        self.preprocess.dispatch_1d(cmd, &pa, n);
+        self.k.preprocess.dispatch_1d(cmd, &pa, n);
         recorder::barrier(&ctx, cmd);
         if let Some(t) = ts {
             t.mark(cmd, "preprocess");
@@ -466,7 +507,7 @@ impl Renderer {
             Count::Host(n),
             None,
         )?;
-        self.setup.dispatch(
+        self.k.setup.dispatch(
             cmd,
             &SetupPush {
                 params: self.params.address(),
@@ -479,7 +520,8 @@ impl Renderer {
         if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "scan");
         }
-        self.emit
+        self.k
+            .emit
             .dispatch_indirect(cmd, &pa, self.stats.raw(), STAT_ARGS * 4);
         recorder::barrier(&ctx, cmd);
         if let Some(t) = ts.as_deref_mut() {
@@ -512,7 +554,8 @@ impl Renderer {
         if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "sort");
         }
-        self.ranges_k
+        self.k
+            .ranges_k
             .dispatch_indirect(cmd, &pa, self.stats.raw(), STAT_ARGS * 4);
         recorder::barrier(&ctx, cmd);
         if let Some(t) = ts.as_deref_mut() {
@@ -531,7 +574,7 @@ impl Renderer {
         } else {
             0
         };
-        let k = &self.composite[variant][opts.samples as usize - 1];
+        let k = &self.k.composite[variant][opts.samples as usize - 1];
         for chunk in 0..plan.chunks {
             k.dispatch(
                 cmd,
@@ -548,11 +591,11 @@ impl Renderer {
             t.mark(cmd, "composite");
         }
         let rpix = plan.render_w * plan.render_h;
-        self.finalize.dispatch_1d(cmd, &pa, rpix);
+        self.k.finalize.dispatch_1d(cmd, &pa, rpix);
         recorder::barrier(&ctx, cmd);
         if plan.supersampled {
             let opix = plan.out_w * plan.out_h;
-            self.downsample.dispatch_1d(cmd, &pa, opix);
+            self.k.downsample.dispatch_1d(cmd, &pa, opix);
             recorder::barrier(&ctx, cmd);
         }
         if let Some(t) = ts {

@@ -33,6 +33,8 @@ pub(super) struct FrameParams {
     pub(super) filter_radius: [f32; 2],
     pub(super) cam_int: [i32; 3],
     pub(super) pad1: i32,
+    /// Host depth convention (see `host::DepthConvention`).
+    pub(super) depth_map: [f32; 4],
     pub(super) octpath: u64,
     pub(super) level: u64,
     pub(super) corners: u64,
@@ -63,6 +65,8 @@ pub(super) struct FrameParams {
     pub(super) maxw: u64,
     /// Optional work counters (0: off), see [`Renderer::set_counters`].
     pub(super) counters: u64,
+    /// Optional host depth values at output resolution (0: off), see `host.rs`.
+    pub(super) host_depth: u64,
 }
 gpu_layout!(FrameParams, FrameParams);
 /// Planar channels of the per-pixel training aux buffer (`AUX_*` in raster_params.glsl).
@@ -104,3 +108,16 @@ push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_MAXW);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_COUNTERS);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_COUNTERS);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_COUNTERS);
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub(super) struct HostOutputPush {
+    pub(super) params: u64,
+    pub(super) color: u64,
+    pub(super) depth: u64,
+    pub(super) format: u32,
+    pub(super) depth_mode: u32,
+    pub(super) depth_clear: f32,
+    pub(super) pad: u32,
+}
+push_constants!(HostOutputPush, kernels::RASTER_HOST_OUTPUT);

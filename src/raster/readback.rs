@@ -49,6 +49,24 @@ pub struct FrameStats {
 }
 
 impl FrameStats {
+    /// The stats of a frame recorded with `plan`, from the words of its stats buffer.
+    pub(super) fn from_words(s: &[u32], plan: &Plan) -> FrameStats {
+        let flags = s[STAT_FLAGS];
+        FrameStats {
+            entries: s[0] as u64 | (s[1] as u64) << 32,
+            entries_used: s[STAT_USED],
+            visible_voxels: s[STAT_VISIBLE],
+            max_tile_entries: s[STAT_MAX_TILE],
+            entry_overflow: flags & FLAG_ENTRY_OVERFLOW != 0,
+            need_chunks: flags & FLAG_NEED_CHUNKS != 0,
+            tiles: plan.tiles,
+            render_width: plan.render_w,
+            render_height: plan.render_h,
+            chunks: plan.chunks,
+            sort_bits: plan.sort_bits,
+        }
+    }
+
     /// True when the frame is complete (nothing was truncated).
     pub fn complete(&self) -> bool {
         !self.entry_overflow && !self.need_chunks
@@ -93,20 +111,7 @@ impl Renderer {
     pub fn stats(&self) -> Result<FrameStats> {
         let plan = self.last_plan()?;
         let s: Vec<u32> = self.ctx.download(&self.stats, 0, STATS_WORDS)?;
-        let flags = s[STAT_FLAGS];
-        Ok(FrameStats {
-            entries: s[0] as u64 | (s[1] as u64) << 32,
-            entries_used: s[STAT_USED],
-            visible_voxels: s[STAT_VISIBLE],
-            max_tile_entries: s[STAT_MAX_TILE],
-            entry_overflow: flags & FLAG_ENTRY_OVERFLOW != 0,
-            need_chunks: flags & FLAG_NEED_CHUNKS != 0,
-            tiles: plan.tiles,
-            render_width: plan.render_w,
-            render_height: plan.render_h,
-            chunks: plan.chunks,
-            sort_bits: plan.sort_bits,
-        })
+        Ok(FrameStats::from_words(&s, &plan))
     }
 
     /// Grows whatever the last frame found short (entries, chunks). Returns whether

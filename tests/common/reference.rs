@@ -202,9 +202,27 @@ pub fn ray_hits(scene: &Scene, o: [f64; 3], d: [f64; 3], t_near: f64) -> Vec<(f6
 }
 
 pub fn render_pixel(scene: &Scene, cam: &Camera, u: f64, v: f64, k: usize) -> RefPixel {
+    render_pixel_cut(scene, cam, u, v, k, f64::INFINITY)
+}
+
+/// [`render_pixel`] with the ray ending at camera depth `far` (a host's surface): each
+/// voxel segment is clipped to it, voxels entered behind it are not composited.
+pub fn render_pixel_cut(
+    scene: &Scene,
+    cam: &Camera,
+    u: f64,
+    v: f64,
+    k: usize,
+    far: f64,
+) -> RefPixel {
     let (o, d, norm) = pixel_ray(cam, u, v);
     let t_near = cam.near * norm;
-    let hits = ray_hits(scene, o, d, t_near);
+    let t_far = far * norm;
+    let hits: Vec<(f64, f64, usize)> = ray_hits(scene, o, d, t_near)
+        .into_iter()
+        .map(|(a, b, i)| (a, b.min(t_far), i))
+        .filter(|&(a, b, _)| a <= b)
+        .collect();
     let mut px = RefPixel {
         hits: hits.len(),
         ..Default::default()

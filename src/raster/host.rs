@@ -1,0 +1,744 @@
+//! Rendering inside a host engine's frame: the host's camera matrices, its colour and
+//! depth images, its command buffers, its device.
+//!
+//! A [`HostRenderer`] records a frame of a trained model into a command buffer the host
+//! owns and submits ([`HostRenderer::record`]). It keeps one set of frame resources per
+//! frame in flight (slot `frame_index % frames_in_flight`), so recording never waits on
+//! the device; what a frame found short (more entries than its buffers hold, longer
+//! tile lists than its recorded chunks) is read when its slot comes round again and the
+//! slot grows before that next frame ([`HostFrameReport`]): one incomplete frame, never
+//! a device loss.
+//!
+//! # Camera
+//! [`HostView`]: the host's view and projection matrices (Vulkan clip space: x right,
+//! y down, depth 0..1 — standard or reverse-Z, finite or infinite far plane, any
+//! perspective including off-centre and oblique ones) and an optional model matrix
+//! placing the field in the host's world (rigid motion and uniform scale). The pinhole
+//! camera is recovered exactly from `P·V·M`; a projection that mirrors the image (a
+//! y-up NDC without a negative-height viewport) or is orthographic is rejected with a
+//! message.
+//!
+//! # Colour and depth
+//! The colour target (an image of a [`ColorFormat`], or a buffer with the same packed
+//! pixels) receives the field with **premultiplied alpha** over a transparent
+//! background: blend it over the host's image with `src + (1 − src.a)·dst`. With a
+//! [`DepthTarget`] (`D32_SFLOAT`) whose `cut_rays` is set, every ray ends at the host's
+//! depth: voxels behind the host's surface are not composited and a voxel straddling
+//! it contributes only its part in front. With `write` set, the depth image receives
+//! the field's depth in the host's convention where the field's alpha reaches 0.5
+//! (median or mean depth); elsewhere the host's depth is kept (or the clear value, 1
+//! or 0 for reverse-Z, when rays are not cut).
+//!
+//! # Synchronisation contract
+//! The recorded commands are compute dispatches, buffer and image copies and fills.
+//! They begin with a barrier from `ALL_COMMANDS` / `MEMORY_WRITE` (everything the host
+//! recorded before is finished and visible) and end with one to `ALL_COMMANDS` /
+//! `MEMORY_READ | MEMORY_WRITE`, so the host needs no barriers of its own around them.
+//! Images are expected in the layout the target names (`layout`: `GENERAL`,
+//! `TRANSFER_*_OPTIMAL`, or any layout the image's contents may be read from — for a
+//! depth attachment `DEPTH_STENCIL_ATTACHMENT_OPTIMAL` or `DEPTH_ATTACHMENT_OPTIMAL`;
+//! `UNDEFINED` for a colour image whose contents are to be replaced) and are left in
+//! `final_layout`. A colour image needs `TRANSFER_DST` usage, a depth image
+//! `TRANSFER_SRC` (cut) and `TRANSFER_DST` (write), a colour buffer `TRANSFER_DST`. All
+//! recorded work must run on the queue family of the [`Context`]. Before recording
+//! frame `i`, the host must have waited for the submission that contained frame
+//! `i − frames_in_flight` (its usual per-frame fence); nothing else is required.
+
+use ash::vk;
+use glam::{DMat4, DVec3, DVec4, Mat4};
+
+use super::params::HostOutputPush;
+use super::plan::Plan;
+use super::{FrameStats, HostFrame, RenderOptions, Renderer, STATS_WORDS};
+use crate::camera::Camera;
+use crate::gpu::{glsl, recorder, Buffer, Context, GrowBuffer, Memory};
+use crate::scene::SceneGpu;
+use crate::{Error, Result};
+
+/// The host's camera: matrices in its conventions.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct HostView {
+    /// World to view space (any handedness).
+    pub view: Mat4,
+    /// View to Vulkan clip space: NDC x right, y down, depth 0..1 (standard or
+    /// reverse-Z, finite or infinite far plane). A perspective projection.
+    pub projection: Mat4,
+    /// The field's coordinates to the host's world (rigid motion, uniform scale).
+    pub model: Mat4,
+    /// The viewport (and target) size in pixels.
+    pub width: u32,
+    pub height: u32,
+    /// The host draws with a negative-height viewport (VK_KHR_maintenance1), i.e. its
+    /// projection has NDC y pointing up.
+    pub viewport_y_up: bool,
+}
+
+/// How the host's depth values relate to camera depth: at pixel direction `(x', y', 1)`
+/// (camera space, `x' = (u − cx)/fx`, `y' = (v − cy)/fy`) a point at camera depth `d`
+/// has depth value `z = a·(x', y', 1) + b / d`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DepthConvention {
+    pub a: [f64; 3],
+    pub b: f64,
+    /// Depth decreases with distance (reverse-Z).
+    pub reverse: bool,
+    /// Camera depth of the near plane on the optical axis.
+    pub near: f64,
+    /// Camera depth of the far plane on the optical axis (infinite for an infinite
+    /// projection).
+    pub far: f64,
+}
+
+impl DepthConvention {
+    /// The value of "nothing here": the far end of the depth range.
+    pub fn clear_value(&self) -> f32 {
+        if self.reverse {
+            0.0
+        } else {
+            1.0
+        }
+    }
+
+    /// Depth value of camera depth `d` at camera-space direction `(x', y', 1)`.
+    pub fn depth_value(&self, d: f64, x: f64, y: f64) -> f64 {
+        self.a[0] * x + self.a[1] * y + self.a[2] + self.b / d
+    }
+
+    /// Camera depth of depth value `z` at `(x', y', 1)` (infinite where `z` is at or
+    /// beyond the far end of an infinite projection).
+    pub fn camera_depth(&self, z: f64, x: f64, y: f64) -> f64 {
+        let d = self.b / (z - (self.a[0] * x + self.a[1] * y + self.a[2]));
+        if d > 0.0 {
+            d
+        } else {
+            f64::INFINITY
+        }
+    }
+
+    fn packed(&self) -> [f32; 4] {
+        [
+            self.a[0] as f32,
+            self.a[1] as f32,
+            self.a[2] as f32,
+            self.b as f32,
+        ]
+    }
+}
+
+impl HostView {
+    /// The pinhole camera (in the field's coordinates) and depth convention of this view.
+    pub fn camera(&self) -> Result<(Camera, DepthConvention)> {
+        let bad = |why: &str| Error::Invalid(format!("host view: {why}"));
+        if self.width == 0 || self.height == 0 {
+            return Err(bad("the viewport is empty"));
+        }
+        let m: DMat4 = self.projection.as_dmat4() * self.view.as_dmat4() * self.model.as_dmat4();
+        if !m.is_finite() {
+            return Err(bad("the matrices have a non-finite entry"));
+        }
+        let (w, h) = (self.width as f64, self.height as f64);
+        let sy = if self.viewport_y_up { -1.0 } else { 1.0 };
+        let (r0, r1, r2, r3) = (m.row(0), m.row(1), m.row(2), m.row(3));
+        if r3.truncate().length() <= 1e-12 * r3.w.abs().max(1.0) {
+            return Err(bad(
+                "the projection is orthographic (clip w does not depend on the position); \
+                 only perspective projections are supported",
+            ));
+        }
+        // Pixel coordinates (centres at i + 0.5) of a world point X: (q0·X, q1·X) / q2·X.
+        let q0 = 0.5 * w * (r0 + r3);
+        let q1 = 0.5 * h * (sy * r1 + r3);
+        let q2 = r3;
+        let a = glam::DMat3::from_cols(q0.truncate(), q1.truncate(), q2.truncate()).transpose();
+        if a.determinant() <= 0.0 || !a.determinant().is_finite() {
+            return Err(bad(
+                "the projection mirrors the image: Vulkan's NDC y points down. Flip the \
+                 projection's y (projection.y_axis.y *= -1) or set viewport_y_up for a \
+                 negative-height viewport",
+            ));
+        }
+        let rows: [[f64; 4]; 4] = [
+            q0.to_array(),
+            q1.to_array(),
+            q2.to_array(),
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        let (intr, c2w) = crate::data::neus::decompose_projection(&rows)
+            .ok_or_else(|| bad("the projection cannot be decomposed into a pinhole camera"))?;
+        let mut cam = Camera {
+            width: self.width,
+            height: self.height,
+            fx: intr[0],
+            fy: intr[1],
+            cx: intr[2],
+            cy: intr[3],
+            c2w,
+            near: crate::camera::DEFAULT_NEAR,
+        };
+        // The pinhole model has no skew: check it reproduces the projection.
+        let c = DVec3::from(cam.origin());
+        let rot = cam.rotation();
+        let scale = q2.dot(c.extend(1.0) + rot.z_axis.extend(0.0));
+        for p in [[0.3, -0.2, 1.0], [-0.4, 0.5, 2.0], [0.1, 0.1, 0.5]] {
+            let x = c + rot * DVec3::from(p);
+            let hx = x.extend(1.0);
+            let (u, v) = (q0.dot(hx) / q2.dot(hx), q1.dot(hx) / q2.dot(hx));
+            let (eu, ev) = (cam.cx + cam.fx * p[0] / p[2], cam.cy + cam.fy * p[1] / p[2]);
+            if (u - eu).abs() > 1e-6 * w.max(1.0) || (v - ev).abs() > 1e-6 * h.max(1.0) {
+                return Err(bad(
+                    "the projection has skew or is not a pinhole projection; \
+                     only skew-free perspective projections are supported",
+                ));
+            }
+        }
+        if scale.is_nan() || scale <= 0.0 {
+            return Err(bad("clip w is not positive in front of the camera"));
+        }
+        // z_ndc = r2·X / r3·X with X = C + d·R·(x', y', 1) and r3·X = scale·d.
+        let ra = rot.transpose() * r2.truncate() / scale;
+        let b = r2.dot(c.extend(1.0)) / scale;
+        if b == 0.0 || !b.is_finite() {
+            return Err(bad("the projection's depth does not vary with distance"));
+        }
+        let reverse = b > 0.0;
+        let at = |z: f64| b / (z - ra.z);
+        let (near, far) = if reverse {
+            (at(1.0), at(0.0))
+        } else {
+            (at(0.0), at(1.0))
+        };
+        if !(near > 0.0 && near.is_finite()) {
+            return Err(bad(&format!(
+                "the near plane is not in front of the camera ({near})"
+            )));
+        }
+        let far = if far > near { far } else { f64::INFINITY };
+        cam.near = near;
+        cam.validate()?;
+        Ok((
+            cam,
+            DepthConvention {
+                a: ra.to_array(),
+                b,
+                reverse,
+                near,
+                far,
+            },
+        ))
+    }
+}
+
+/// Pixel formats of a colour target (premultiplied alpha).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ColorFormat {
+    /// `R8G8B8A8_UNORM`: linear values clamped to 0..1.
+    Rgba8Unorm,
+    /// `R8G8B8A8_SRGB`: premultiplied linear colour, sRGB-encoded (the hardware
+    /// decodes it back to linear when the host samples or blends it).
+    Rgba8Srgb,
+    /// `R16G16B16A16_SFLOAT`: unclamped.
+    Rgba16Float,
+    /// `R32G32B32A32_SFLOAT`: unclamped.
+    Rgba32Float,
+}
+
+impl ColorFormat {
+    /// The Vulkan format.
+    pub fn vk(self) -> vk::Format {
+        match self {
+            ColorFormat::Rgba8Unorm => vk::Format::R8G8B8A8_UNORM,
+            ColorFormat::Rgba8Srgb => vk::Format::R8G8B8A8_SRGB,
+            ColorFormat::Rgba16Float => vk::Format::R16G16B16A16_SFLOAT,
+            ColorFormat::Rgba32Float => vk::Format::R32G32B32A32_SFLOAT,
+        }
+    }
+
+    /// Bytes per pixel.
+    pub fn bytes(self) -> u64 {
+        match self {
+            ColorFormat::Rgba8Unorm | ColorFormat::Rgba8Srgb => 4,
+            ColorFormat::Rgba16Float => 8,
+            ColorFormat::Rgba32Float => 16,
+        }
+    }
+
+    fn code(self) -> u32 {
+        match self {
+            ColorFormat::Rgba8Unorm => glsl::HOST_RGBA8_UNORM,
+            ColorFormat::Rgba8Srgb => glsl::HOST_RGBA8_SRGB,
+            ColorFormat::Rgba16Float => glsl::HOST_RGBA16F,
+            ColorFormat::Rgba32Float => glsl::HOST_RGBA32F,
+        }
+    }
+}
+
+/// Which depth of the field a host depth target receives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum DepthMode {
+    /// The median depth (where the transmittance falls to one half): a surface.
+    #[default]
+    Median,
+    /// The mean depth (Σ w·t / α).
+    Mean,
+}
+
+/// Where the colour goes.
+#[derive(Clone, Copy, Debug)]
+pub enum ColorTarget {
+    /// A 2-D colour image of the view's size (mip 0, layer 0).
+    Image {
+        image: vk::Image,
+        format: ColorFormat,
+        layout: vk::ImageLayout,
+        final_layout: vk::ImageLayout,
+    },
+    /// A buffer receiving row-major packed pixels at `offset`.
+    Buffer {
+        buffer: vk::Buffer,
+        offset: u64,
+        format: ColorFormat,
+    },
+}
+
+/// The host's depth image (`D32_SFLOAT`, the view's size, mip 0, layer 0).
+#[derive(Clone, Copy, Debug)]
+pub struct DepthTarget {
+    pub image: vk::Image,
+    pub layout: vk::ImageLayout,
+    pub final_layout: vk::ImageLayout,
+    /// End every ray at the host's depth.
+    pub cut_rays: bool,
+    /// Write the field's depth (where it is opaque enough) into the image.
+    pub write: Option<DepthMode>,
+}
+
+/// A frame's targets.
+#[derive(Clone, Copy, Debug)]
+pub struct HostTarget {
+    pub color: ColorTarget,
+    pub depth: Option<DepthTarget>,
+}
+
+/// What [`HostRenderer::record`] found about the slot's previous frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct HostFrameReport {
+    /// The stats of the previous frame recorded in this slot (complete once its
+    /// submission finished; `None` for a slot's first frame).
+    pub previous: Option<FrameStats>,
+    /// That frame was incomplete and the slot grew (its image missed entries).
+    pub grew: bool,
+}
+
+struct Slot {
+    renderer: Renderer,
+    color: GrowBuffer,
+    depth_in: GrowBuffer,
+    depth_out: GrowBuffer,
+    /// The frame's stats words, copied here at its end.
+    readback: Buffer,
+    pending: Option<Plan>,
+}
+
+/// Records frames of a model into a host's command buffers (see the module docs).
+pub struct HostRenderer {
+    ctx: Context,
+    slots: Vec<Slot>,
+}
+
+impl HostRenderer {
+    /// A renderer for `frames_in_flight` (≥ 1) frames recorded before the oldest is
+    /// waited for.
+    pub fn new(ctx: &Context, frames_in_flight: u32) -> Result<HostRenderer> {
+        if frames_in_flight == 0 {
+            return Err(Error::Invalid("frames in flight must be at least 1".into()));
+        }
+        let first = Renderer::new(ctx)?;
+        let mut renderers = vec![];
+        for _ in 1..frames_in_flight {
+            renderers.push(Renderer::sharing(&first)?);
+        }
+        renderers.insert(0, first);
+        let slots = renderers
+            .into_iter()
+            .map(|renderer| {
+                Ok(Slot {
+                    renderer,
+                    color: GrowBuffer::new("host.color"),
+                    depth_in: GrowBuffer::new("host.depth-in"),
+                    depth_out: GrowBuffer::new("host.depth-out"),
+                    readback: ctx.buffer("host.stats", STATS_WORDS as u64 * 4, Memory::Readback)?,
+                    pending: None,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(HostRenderer {
+            ctx: ctx.clone(),
+            slots,
+        })
+    }
+
+    /// Overrides every slot's composite chunk size (tests use small chunks to make a
+    /// slot grow).
+    pub fn set_chunk_size(&mut self, entries: u32) {
+        for s in &mut self.slots {
+            s.renderer.set_chunk_size(entries);
+        }
+    }
+
+    /// The stats of frame `frame_index` (the latest frame recorded in its slot), once
+    /// the host has waited for its submission; `None` if none is pending there.
+    pub fn finished(&self, frame_index: u64) -> Option<FrameStats> {
+        let slot = &self.slots[(frame_index % self.slots.len() as u64) as usize];
+        let plan = slot.pending?;
+        let words: &[u32] = bytemuck::cast_slice(
+            &slot.readback.mapped().expect("readback memory is mapped")[..STATS_WORDS * 4],
+        );
+        Some(FrameStats::from_words(words, &plan))
+    }
+
+    /// Frames in flight (slots).
+    pub fn frames_in_flight(&self) -> u32 {
+        self.slots.len() as u32
+    }
+
+    /// Device bytes held by the slots' frame buffers.
+    pub fn bytes(&self) -> u64 {
+        self.slots
+            .iter()
+            .map(|s| {
+                s.renderer.bytes() + s.color.bytes() + s.depth_in.bytes() + s.depth_out.bytes()
+            })
+            .sum()
+    }
+
+    /// Records frame `frame_index` of `scene` seen by `view` into `cmd` (see the module
+    /// docs for the synchronisation contract). Uses slot `frame_index % frames_in_flight`,
+    /// whose previous frame must have completed.
+    pub fn record(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        frame_index: u64,
+        scene: &SceneGpu,
+        view: &HostView,
+        opts: &RenderOptions,
+        target: &HostTarget,
+    ) -> Result<HostFrameReport> {
+        let n = self.slots.len() as u64;
+        let ctx = self.ctx.clone();
+        let mut report = HostFrameReport::default();
+        let previous = self.finished(frame_index);
+        let slot = &mut self.slots[(frame_index % n) as usize];
+        slot.pending = None;
+        if let Some(stats) = previous {
+            report.previous = Some(stats);
+            if !stats.complete() {
+                report.grew = slot.renderer.grow_for(&stats)?;
+            }
+        }
+        let (cam, conv) = view.camera()?;
+        slot.renderer.prepare(scene, &cam, opts)?;
+        let npix = view.width as u64 * view.height as u64;
+        let format = match target.color {
+            ColorTarget::Image { format, .. } | ColorTarget::Buffer { format, .. } => format,
+        };
+        slot.color.ensure(&ctx, npix * format.bytes())?;
+        // A depth target that neither cuts nor is written is not touched.
+        let depth = target.depth.filter(|d| d.cut_rays || d.write.is_some());
+        let cut = depth.is_some_and(|d| d.cut_rays);
+        let write = depth.and_then(|d| d.write);
+        if cut {
+            slot.depth_in.ensure(&ctx, npix * 4)?;
+        }
+        if write.is_some() {
+            slot.depth_out.ensure(&ctx, npix * 4)?;
+        }
+        let dev = ctx.device();
+        let colour_range = subresource(vk::ImageAspectFlags::COLOR);
+        let depth_range = subresource(vk::ImageAspectFlags::DEPTH);
+
+        // Entry: the host's work is done and visible; images into transfer layouts.
+        let mut entry_images = vec![];
+        if let ColorTarget::Image { image, layout, .. } = target.color {
+            entry_images.push(
+                vk::ImageMemoryBarrier::default()
+                    .src_access_mask(vk::AccessFlags::MEMORY_WRITE)
+                    .dst_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+                    .old_layout(layout)
+                    .new_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
+                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .image(image)
+                    .subresource_range(colour_range),
+            );
+        }
+        if let Some(d) = depth {
+            // Read (cut) first, then written: TRANSFER_SRC, then TRANSFER_DST below.
+            let first = if cut {
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL
+            } else {
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL
+            };
+            entry_images.push(
+                vk::ImageMemoryBarrier::default()
+                    .src_access_mask(vk::AccessFlags::MEMORY_WRITE)
+                    .dst_access_mask(
+                        vk::AccessFlags::TRANSFER_READ | vk::AccessFlags::TRANSFER_WRITE,
+                    )
+                    .old_layout(d.layout)
+                    .new_layout(first)
+                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .image(d.image)
+                    .subresource_range(depth_range),
+            );
+        }
+        let all = [vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::MEMORY_WRITE)
+            .dst_access_mask(vk::AccessFlags::MEMORY_READ | vk::AccessFlags::MEMORY_WRITE)];
+        unsafe {
+            dev.cmd_pipeline_barrier(
+                cmd,
+                vk::PipelineStageFlags::ALL_COMMANDS,
+                vk::PipelineStageFlags::TRANSFER | vk::PipelineStageFlags::COMPUTE_SHADER,
+                vk::DependencyFlags::empty(),
+                &all,
+                &[],
+                &entry_images,
+            );
+        }
+        let region = vk::BufferImageCopy {
+            buffer_offset: 0,
+            buffer_row_length: 0,
+            buffer_image_height: 0,
+            image_subresource: vk::ImageSubresourceLayers {
+                aspect_mask: vk::ImageAspectFlags::DEPTH,
+                mip_level: 0,
+                base_array_layer: 0,
+                layer_count: 1,
+            },
+            image_offset: vk::Offset3D::default(),
+            image_extent: vk::Extent3D {
+                width: view.width,
+                height: view.height,
+                depth: 1,
+            },
+        };
+        if let (Some(d), true) = (depth, cut) {
+            unsafe {
+                dev.cmd_copy_image_to_buffer(
+                    cmd,
+                    d.image,
+                    vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                    slot.depth_in.get().raw(),
+                    &[region],
+                );
+            }
+            recorder::barrier(&ctx, cmd);
+        }
+
+        slot.renderer.host = Some(HostFrame {
+            depth: if cut { slot.depth_in.address() } else { 0 },
+            depth_map: conv.packed(),
+        });
+        let recorded = slot.renderer.record(cmd, scene, &cam, opts, None);
+        slot.renderer.host = None;
+        recorded?;
+        let plan = slot.renderer.last_plan()?;
+        slot.renderer.k.host_output.dispatch_1d(
+            cmd,
+            &HostOutputPush {
+                params: slot.renderer.params.address(),
+                color: slot.color.address(),
+                depth: if write.is_some() {
+                    slot.depth_out.address()
+                } else {
+                    0
+                },
+                format: format.code(),
+                depth_mode: match write {
+                    Some(DepthMode::Mean) => glsl::HOST_DEPTH_MEAN,
+                    _ => glsl::HOST_DEPTH_MEDIAN,
+                },
+                depth_clear: conv.clear_value(),
+                pad: 0,
+            },
+            npix as u32,
+        );
+        recorder::barrier(&ctx, cmd);
+
+        // Results to the host's targets.
+        let colour_bytes = npix * format.bytes();
+        match target.color {
+            ColorTarget::Image { image, .. } => unsafe {
+                let mut r = region;
+                r.image_subresource.aspect_mask = vk::ImageAspectFlags::COLOR;
+                dev.cmd_copy_buffer_to_image(
+                    cmd,
+                    slot.color.get().raw(),
+                    image,
+                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                    &[r],
+                );
+            },
+            ColorTarget::Buffer { buffer, offset, .. } => unsafe {
+                dev.cmd_copy_buffer(
+                    cmd,
+                    slot.color.get().raw(),
+                    buffer,
+                    &[vk::BufferCopy {
+                        src_offset: 0,
+                        dst_offset: offset,
+                        size: colour_bytes,
+                    }],
+                );
+            },
+        }
+        if let (Some(d), Some(_)) = (depth, write) {
+            if cut {
+                let b = [vk::ImageMemoryBarrier::default()
+                    .src_access_mask(vk::AccessFlags::TRANSFER_READ)
+                    .dst_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+                    .old_layout(vk::ImageLayout::TRANSFER_SRC_OPTIMAL)
+                    .new_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
+                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .image(d.image)
+                    .subresource_range(depth_range)];
+                unsafe {
+                    dev.cmd_pipeline_barrier(
+                        cmd,
+                        vk::PipelineStageFlags::TRANSFER,
+                        vk::PipelineStageFlags::TRANSFER,
+                        vk::DependencyFlags::empty(),
+                        &[],
+                        &[],
+                        &b,
+                    );
+                }
+            }
+            unsafe {
+                dev.cmd_copy_buffer_to_image(
+                    cmd,
+                    slot.depth_out.get().raw(),
+                    d.image,
+                    vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                    &[region],
+                );
+            }
+        }
+        recorder::copy(
+            &ctx,
+            cmd,
+            &slot.renderer.stats,
+            &slot.readback,
+            0,
+            0,
+            STATS_WORDS as u64 * 4,
+        );
+
+        // Exit: everything written is visible to whatever the host does next (and the
+        // stats to the host once the submission completed); final layouts.
+        let mut exit_images = vec![];
+        if let ColorTarget::Image {
+            image,
+            final_layout,
+            ..
+        } = target.color
+        {
+            exit_images.push(
+                vk::ImageMemoryBarrier::default()
+                    .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+                    .dst_access_mask(vk::AccessFlags::MEMORY_READ | vk::AccessFlags::MEMORY_WRITE)
+                    .old_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
+                    .new_layout(final_layout)
+                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .image(image)
+                    .subresource_range(colour_range),
+            );
+        }
+        if let Some(d) = depth {
+            let last = if write.is_some() {
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL
+            } else {
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL
+            };
+            exit_images.push(
+                vk::ImageMemoryBarrier::default()
+                    .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+                    .dst_access_mask(vk::AccessFlags::MEMORY_READ | vk::AccessFlags::MEMORY_WRITE)
+                    .old_layout(last)
+                    .new_layout(d.final_layout)
+                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .image(d.image)
+                    .subresource_range(depth_range),
+            );
+        }
+        let exit = [vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::TRANSFER_WRITE | vk::AccessFlags::SHADER_WRITE)
+            .dst_access_mask(
+                vk::AccessFlags::MEMORY_READ
+                    | vk::AccessFlags::MEMORY_WRITE
+                    | vk::AccessFlags::HOST_READ,
+            )];
+        unsafe {
+            dev.cmd_pipeline_barrier(
+                cmd,
+                vk::PipelineStageFlags::TRANSFER | vk::PipelineStageFlags::COMPUTE_SHADER,
+                vk::PipelineStageFlags::ALL_COMMANDS | vk::PipelineStageFlags::HOST,
+                vk::DependencyFlags::empty(),
+                &exit,
+                &[],
+                &exit_images,
+            );
+        }
+        slot.pending = Some(plan);
+        Ok(report)
+    }
+}
+
+fn subresource(aspect: vk::ImageAspectFlags) -> vk::ImageSubresourceRange {
+    vk::ImageSubresourceRange {
+        aspect_mask: aspect,
+        base_mip_level: 0,
+        level_count: 1,
+        base_array_layer: 0,
+        layer_count: 1,
+    }
+}
+
+/// A view/projection pair for `cam` in Vulkan conventions (view space x right, y down,
+/// z forward; NDC y down), standard or reverse-Z, with a finite `far` or an infinite
+/// one (`None`). The inverse of [`HostView::camera`]; for tests and examples.
+pub fn matrices_for(cam: &Camera, far: Option<f64>, reverse: bool) -> (Mat4, Mat4) {
+    let w2c = cam.w2c();
+    let view = DMat4::from_cols_array_2d(&std::array::from_fn(|c| {
+        std::array::from_fn(|r| {
+            if r < 3 {
+                w2c[r][c]
+            } else if c == 3 {
+                1.0
+            } else {
+                0.0
+            }
+        })
+    }));
+    let (w, h) = (cam.width as f64, cam.height as f64);
+    let n = cam.near;
+    // Depth row: z_ndc·d = za·d + zb for camera depth d.
+    let (za, zb) = match (far, reverse) {
+        (Some(f), false) => (f / (f - n), -f * n / (f - n)),
+        (None, false) => (1.0, -n),
+        (Some(f), true) => (-n / (f - n), f * n / (f - n)),
+        (None, true) => (0.0, n),
+    };
+    // x_ndc = 2(u/w) − 1 with u = fx·x/z + cx, likewise y.
+    let proj = DMat4::from_cols(
+        DVec4::new(2.0 * cam.fx / w, 0.0, 0.0, 0.0),
+        DVec4::new(0.0, 2.0 * cam.fy / h, 0.0, 0.0),
+        DVec4::new(2.0 * cam.cx / w - 1.0, 2.0 * cam.cy / h - 1.0, za, 1.0),
+        DVec4::new(0.0, 0.0, zb, 0.0),
+    );
+    (view.as_mat4(), proj.as_mat4())
+}
