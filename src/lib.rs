@@ -33,10 +33,10 @@ pub use camera::Camera;
 pub use error::{Error, Result};
 /// The Vulkan device the engine runs on (owned, or borrowed from a host engine).
 pub use gpu::Context;
-/// Records a frame of a scene into a command buffer, or renders and reads it back.
-pub use raster::{RenderOptions, Renderer};
 /// Records frames into a host engine's command buffers, images and depth (embedding).
 pub use raster::host::{HostRenderer, HostTarget, HostView};
+/// Records a frame of a scene into a command buffer, or renders and reads it back.
+pub use raster::{RenderOptions, Renderer};
 /// Exclusive prefix sum of u32 counts on the device.
 pub use scan::PrefixScan;
 /// A sparse-voxel model (host) and its device copy.

@@ -1,7 +1,8 @@
 //! Embedding in a host engine (src/raster/host.rs): the host's matrices give back the
 //! pinhole camera and depth convention; a host with its own device, depth pass and
 //! command buffers gets the field cut at its depth, premultiplied, in its formats, with
-//! its depth written; standard and reverse-Z agree; frames in flight are clean under
+//! its depth written (colour as premultiplied linear light: α·srgb_decode(C/α) of the
+//! reference's composited C and α); standard and reverse-Z agree; frames in flight are clean under
 //! synchronisation validation and grow without device loss.
 //!
 //! Stated bounds: colour and alpha within 1e-3 of the f64 reference cut at the host's
@@ -236,6 +237,25 @@ fn references(
         }
     }
     out
+}
+
+fn srgb_decode(x: f64) -> f64 {
+    if x <= 0.04045 {
+        x / 12.92
+    } else {
+        ((x + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// The host's premultiplied linear light of a reference pixel: α·decode(C/α).
+fn linear(r: &RefPixel) -> [f64; 3] {
+    std::array::from_fn(|c| {
+        if r.alpha > 0.0 {
+            r.alpha * srgb_decode((r.rgb[c] / r.alpha).max(0.0))
+        } else {
+            0.0
+        }
+    })
 }
 
 fn srgb_encode(x: f64) -> f64 {
@@ -492,8 +512,9 @@ fn host_depth_cuts_rays_and_targets_agree() {
                 cut_matters += 1;
             }
             let g = f.f32_rgba[i];
+            let lin = linear(r);
             for c in 0..3 {
-                e_rgb = e_rgb.max((g[c] as f64 - r.rgb[c]).abs());
+                e_rgb = e_rgb.max((g[c] as f64 - lin[c]).abs());
             }
             e_rgb = e_rgb.max((g[3] as f64 - r.alpha).abs());
             // Written depth: the field's median where it is opaque enough, the host's
@@ -690,8 +711,9 @@ fn frames_in_flight_grow_and_stay_clean() {
     let got: Vec<f32> = colour[s].read();
     let mut e = 0f64;
     for (i, r) in refs.iter().enumerate() {
+        let lin = linear(r);
         for c in 0..3 {
-            e = e.max((got[4 * i + c] as f64 - r.rgb[c]).abs());
+            e = e.max((got[4 * i + c] as f64 - lin[c]).abs());
         }
         e = e.max((got[4 * i + 3] as f64 - r.alpha).abs());
     }

@@ -1,6 +1,8 @@
 #version 460
-// Host output (raster/host.rs): the frame's final image at output resolution, packed
-// for the host's colour target with premultiplied alpha, and optionally the depth in
+// Host output (raster/host.rs): the frame's final image at output resolution as
+// premultiplied linear light (the model's colours are sRGB-encoded display values, as
+// the photos it was trained on: α·decode(C/α)), packed for the host's colour target
+// (sRGB targets store encode(α·linear)), and optionally the depth in
 // the host's convention. The field writes a depth where its alpha reaches 0.5 in front
 // of the host's surface (median or mean depth, as chosen); elsewhere the host's own
 // depth passes through (or, without host depth, the clear value).
@@ -21,6 +23,10 @@ float srgb_encode(float x) {
     return x <= 0.0031308 ? 12.92 * x : 1.055 * pow(x, 1.0 / 2.4) - 0.055;
 }
 
+float srgb_decode(float x) {
+    return x <= 0.04045 ? x / 12.92 : pow((x + 0.055) / 1.055, 2.4);
+}
+
 void main() {
     FrameParams P = pc.P;
     uint p = linear_group_id() * 256u + gl_LocalInvocationID.x;
@@ -30,6 +36,8 @@ void main() {
     F32s img = P.supersampled != 0u ? P.out_img : P.img;
     vec4 c = vec4(img.v[CH_R * npix + p], img.v[CH_G * npix + p], img.v[CH_B * npix + p],
                   img.v[CH_T * npix + p]);
+    vec3 d = c.a > 0.0 ? max(c.rgb / c.a, 0.0) : vec3(0.0);
+    c.rgb = c.a * vec3(srgb_decode(d.r), srgb_decode(d.g), srgb_decode(d.b));
     if (pc.format == HOST_RGBA32F) {
         for (uint k = 0u; k < 4u; ++k) pc.color.v[4u * p + k] = floatBitsToUint(c[k]);
     } else if (pc.format == HOST_RGBA16F) {

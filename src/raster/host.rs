@@ -20,8 +20,12 @@
 //!
 //! # Colour and depth
 //! The colour target (an image of a [`ColorFormat`], or a buffer with the same packed
-//! pixels) receives the field with **premultiplied alpha** over a transparent
-//! background: blend it over the host's image with `src + (1 − src.a)·dst`. With a
+//! pixels) receives the field as **premultiplied linear light** over a transparent
+//! background: blend it over the host's linear image with `src + (1 − src.a)·dst`. The
+//! model's colours are sRGB-encoded display values (those of the photos it was trained
+//! on), so a pixel of composited colour `C` and alpha `α` is written as
+//! `α·srgb_decode(C/α)`; float targets take that unclamped, `Rgba8Unorm` clamped to
+//! 0..1, and `Rgba8Srgb` stores its sRGB encoding (the hardware decodes it back). With a
 //! [`DepthTarget`] (`D32_SFLOAT`) whose `cut_rays` is set, every ray ends at the host's
 //! depth: voxels behind the host's surface are not composited and a voxel straddling
 //! it contributes only its part in front. With `write` set, the depth image receives
@@ -231,9 +235,9 @@ impl HostView {
 /// Pixel formats of a colour target (premultiplied alpha).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ColorFormat {
-    /// `R8G8B8A8_UNORM`: linear values clamped to 0..1.
+    /// `R8G8B8A8_UNORM`: premultiplied linear light clamped to 0..1.
     Rgba8Unorm,
-    /// `R8G8B8A8_SRGB`: premultiplied linear colour, sRGB-encoded (the hardware
+    /// `R8G8B8A8_SRGB`: premultiplied linear light, sRGB-encoded (the hardware
     /// decodes it back to linear when the host samples or blends it).
     Rgba8Srgb,
     /// `R16G16B16A16_SFLOAT`: unclamped.
