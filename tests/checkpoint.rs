@@ -1217,3 +1217,193 @@ fn safetensors_reference_implementation_interoperates() {
         )
     );
 }
+
+// ---------------------------------------------------------------------------------------
+// 8-bit quantized checkpoints (scene::quantize, checkpoint::save_quantized)
+
+/// A scene with ordinary values: densities ~ N(-2, 3), SH DC ~ N(0, 1), higher SH
+/// ~ N(0, 0.2) (sums of uniforms), SH degree 3; random voxels, or (`grid`) every voxel
+/// of level 5 (32 768, as a model's starting grid).
+fn ordinary_scene(seed: u64, grid: bool) -> Scene {
+    let mut rng = Pcg64::seed_from_u64(seed);
+    let voxels: Vec<(u64, u8)> = if grid {
+        (0..32u32 * 32 * 32)
+            .map(|i| (octpath_from_ijk([i % 32, i / 32 % 32, i / 1024], 5), 5u8))
+            .collect()
+    } else {
+        random_voxels(&mut rng, 8, 500)
+    };
+    let mut s = scene_from(&mut rng, &voxels, 3);
+    let mut normal = |mean: f32, sd: f32| -> f32 {
+        let u: f32 = (0..6).map(|_| rng.gen::<f32>()).sum::<f32>() - 3.0;
+        mean + sd * u * std::f32::consts::SQRT_2
+    };
+    for g in &mut s.geo {
+        *g = normal(-2.0, 3.0);
+    }
+    for c in &mut s.sh0 {
+        *c = [normal(0.0, 1.0), normal(0.0, 1.0), normal(0.0, 1.0)];
+    }
+    for c in &mut s.shs {
+        *c = normal(0.0, 0.2);
+    }
+    s
+}
+
+/// (codebooks of every channel, in order geo, sh0 r/g/b, shs) of a quantized file.
+fn codebooks(bytes: &[u8]) -> Vec<Vec<f32>> {
+    let (meta, ts) = tensors(bytes);
+    assert_eq!(meta["quantized"], "kmeans8");
+    let mut out = vec![];
+    for name in ["geo_grid_pts_codebook", "sh0_codebook", "shs_codebook"] {
+        let t = ts.iter().find(|t| t.name == name).unwrap();
+        let v: Vec<f32> = t
+            .data
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        out.extend(v.chunks(256).map(|c| c.to_vec()));
+    }
+    out
+}
+
+/// Every value of `orig` channel `c` of `channels` became the codebook entry nearest
+/// to it (ties either way).
+#[track_caller]
+fn assert_nearest(orig: &[f32], got: &[f32], books: &[Vec<f32>], channels: usize, what: &str) {
+    for (i, (&o, &g)) in orig.iter().zip(got).enumerate() {
+        let book = &books[i % channels];
+        assert!(book.contains(&g), "{what}[{i}]: {g} is not in its codebook");
+        let best = book
+            .iter()
+            .map(|&c| (o as f64 - c as f64).abs())
+            .fold(f64::INFINITY, f64::min);
+        assert!(
+            (o as f64 - g as f64).abs() <= best,
+            "{what}[{i}]: {o} became {g}, but a codebook entry is {best} away"
+        );
+    }
+}
+
+#[test]
+fn quantized_checkpoints_load_as_the_nearest_codebook_entries() {
+    let dir = TempDir::new("quantized");
+    for seed in 0..16u64 {
+        // Extreme values (any finite f32) half of the time, ordinary ones otherwise.
+        let s = if seed % 2 == 0 {
+            random_scene(seed)
+        } else {
+            ordinary_scene(seed, false)
+        };
+        let path = dir.path("q.safetensors");
+        checkpoint::save_quantized(&s, &path).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let q = load(&path).unwrap();
+        assert_eq!(q.octpath, s.octpath);
+        assert_eq!(q.octlevel, s.octlevel);
+        assert_eq!(q.sh_degree, s.sh_degree);
+        assert_eq!(q.center, s.center);
+        assert_eq!(q.extent, s.extent);
+        assert_eq!(q.background, s.background);
+        assert_eq!(q.supersample, s.supersample);
+        let books = codebooks(&bytes);
+        let k = s.shs_per_voxel();
+        assert_eq!(books.len(), 1 + 3 + 3 * k);
+        assert_nearest(&s.geo, &q.geo, &books[..1], 1, "geo");
+        let (s0, q0): (&[f32], &[f32]) =
+            (bytemuck::cast_slice(&s.sh0), bytemuck::cast_slice(&q.sh0));
+        assert_nearest(s0, q0, &books[1..4], 3, "sh0");
+        assert_nearest(&s.shs, &q.shs, &books[4..], 3 * k, "shs");
+    }
+}
+
+#[test]
+fn quantized_codebooks_are_refined_and_the_file_is_small() {
+    use svraster::scene::quantize::kmeans8;
+    let s = ordinary_scene(3, true);
+    let full = to_bytes(&s).unwrap().len();
+    let quant = checkpoint::to_bytes_quantized(&s).unwrap().len();
+    let ratio = quant as f64 / full as f64;
+    println!(
+        "{} voxels, {} grid points: {full} → {quant} bytes ({:.0} % smaller)",
+        s.num_voxels(),
+        s.num_grid_points(),
+        100.0 * (1.0 - ratio)
+    );
+    assert!(ratio < 0.35, "quantized file is {ratio:.2} of the full one");
+    // k-means against its own start (256 equal-count slices) and against uniform levels.
+    let mse = |v: &[f32], book: &[f32]| -> f64 {
+        v.iter()
+            .map(|&x| {
+                book.iter()
+                    .map(|&c| (x as f64 - c as f64).powi(2))
+                    .fold(f64::INFINITY, f64::min)
+            })
+            .sum::<f64>()
+            / v.len() as f64
+    };
+    for (what, v) in [
+        ("densities", s.geo.clone()),
+        ("shs", s.shs.iter().step_by(45).copied().collect()),
+    ] {
+        let q = kmeans8(&v);
+        let mut sorted = v.clone();
+        sorted.sort_by(f32::total_cmp);
+        let n = sorted.len();
+        let start: Vec<f32> = (0..256)
+            .map(|k| {
+                let (a, b) = (k * n / 256, (k + 1) * n / 256);
+                (sorted[a..b].iter().map(|&x| x as f64).sum::<f64>() / (b - a) as f64) as f32
+            })
+            .collect();
+        let (lo, hi) = (sorted[0], sorted[n - 1]);
+        let uniform: Vec<f32> = (0..256)
+            .map(|k| lo + (hi - lo) * (k as f32 + 0.5) / 256.0)
+            .collect();
+        let (e, e0, eu) = (mse(&v, &q.codebook), mse(&v, &start), mse(&v, &uniform));
+        println!("{what}: mse k-means {e:.3e}, start {e0:.3e}, uniform {eu:.3e}");
+        assert!(e < 0.9 * e0, "{what}: k-means did not improve on its start");
+        assert!(e < eu, "{what}: k-means is worse than uniform levels");
+        assert!(
+            q.codebook.windows(2).all(|w| w[0] <= w[1]),
+            "codebook not ascending"
+        );
+    }
+}
+
+#[test]
+fn corrupt_quantized_checkpoints_are_rejected() {
+    let q = checkpoint::to_bytes_quantized(&base_scene()).unwrap();
+    let (meta, ts) = tensors(&q);
+    let with = |f: &dyn Fn(&mut Value, &mut Vec<T>)| {
+        let (mut m, mut t) = (meta.clone(), ts.clone());
+        f(&mut m, &mut t);
+        assemble(&m, &t)
+    };
+    expect_err(
+        &with(&|_, t| {
+            let cb = tensor(t, "sh0_codebook");
+            cb.data[4..8].copy_from_slice(&f32::NAN.to_le_bytes());
+        }),
+        &["sh0_codebook", "not finite"],
+    );
+    expect_err(
+        &with(&|m, _| m["quantized"] = json!("int4")),
+        &["quantized", "int4", "unsupported"],
+    );
+    expect_err(
+        &with(&|_, t| tensor(t, "geo_grid_pts_codebook").shape = vec![2, 128]),
+        &["geo_grid_pts_codebook", "[1, 256]"],
+    );
+    // Without the metadata key the quantized tensors are unknown.
+    expect_err(
+        &with(&|m, _| {
+            m.as_object_mut().unwrap().remove("quantized");
+        }),
+        &["unknown tensor", "geo_grid_pts_codebook"],
+    );
+    // A full-precision file claiming to be quantized lacks the quantized tensors.
+    let (mut m, t) = tensors(&to_bytes(&base_scene()).unwrap());
+    m["quantized"] = json!("kmeans8");
+    expect_err(&assemble(&m, &t), &["unknown tensor"]);
+}

@@ -1241,3 +1241,103 @@ fn mesh_of_the_voxelized_demo_is_accurate_and_readable() {
         "{err}"
     );
 }
+
+/// `svraster export`: the voxel PLY reads back with the independent numpy reader (one
+/// point per voxel, in the scene cube), and the 8-bit quantized checkpoint is smaller
+/// and renders within 0.1 dB of the full model; bad requests fail with one
+/// clear error and no file.
+#[test]
+fn export_ply_and_quantized_checkpoint() {
+    let dir = tmp("export");
+    let d = dir.path().to_str().unwrap();
+    let (ok, out, err) = svraster(&[
+        "demo",
+        "--out",
+        d,
+        "--size",
+        "32",
+        "--voxelize",
+        "--level",
+        "6",
+    ]);
+    assert!(ok, "{err}");
+    let voxels: u64 = out
+        .split("demo: ")
+        .nth(1)
+        .and_then(|s| s.split_whitespace().next())
+        .and_then(|s| s.parse().ok())
+        .unwrap_or_else(|| panic!("voxel count in {out}"));
+    let run = dir.path().join("run");
+    let data = dir.path().join("data");
+    let (run_s, data_s) = (run.to_str().unwrap(), data.to_str().unwrap());
+    let ply = dir.path().join("voxels.ply");
+    let (ok, out, err) = svraster(&["export", run_s, "--out", ply.to_str().unwrap()]);
+    assert!(ok, "{err}");
+    assert!(out.contains(&format!("{voxels} voxels")), "{out}");
+    let py = Command::new(python())
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tools/ply_read.py"))
+        .arg(&ply)
+        .output()
+        .expect("run python3 (tools/setup.sh installs python3-numpy)");
+    assert!(
+        py.status.success(),
+        "{}",
+        String::from_utf8_lossy(&py.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&py.stdout).unwrap();
+    assert_eq!(v["vertices"].as_u64(), Some(voxels));
+    assert_eq!(v["faces"].as_u64(), Some(0));
+    let props: Vec<&str> = v["properties"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_str().unwrap())
+        .collect();
+    assert_eq!(
+        props,
+        ["x", "y", "z", "size", "level", "density", "red", "green", "blue"]
+    );
+    for k in 0..3 {
+        let (lo, hi) = (v["min"][k].as_f64().unwrap(), v["max"][k].as_f64().unwrap());
+        assert!(lo > -1.5 && hi < 1.5 && lo < hi, "axis {k}: {lo} .. {hi}");
+    }
+
+    let q = dir.path().join("q.safetensors");
+    let (ok, out, err) = svraster(&[
+        "export",
+        run_s,
+        "--format",
+        "quantized",
+        "--out",
+        q.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    let full = std::fs::metadata(run.join("model.safetensors"))
+        .unwrap()
+        .len();
+    let small = std::fs::metadata(&q).unwrap().len();
+    println!("{out}: {full} → {small} bytes");
+    // The voxelized demo has SH degree 0 (21 bytes per voxel, 12 quantized, plus the
+    // codebooks); degree 3 gives ~70 % (tests/checkpoint.rs).
+    assert!((small as f64) < 0.6 * full as f64, "{full} → {small}");
+    let psnr = |model: &str| -> f64 {
+        let (ok, out, err) = svraster(&["eval", model, "--data", data_s, "--json"]);
+        assert!(ok, "{err}");
+        let j: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+        j["psnr"].as_f64().unwrap()
+    };
+    let (p_full, p_q) = (psnr(run_s), psnr(q.to_str().unwrap()));
+    println!("test PSNR: full {p_full:.3} dB, quantized {p_q:.3} dB");
+    assert!((p_full - p_q).abs() < 0.1, "{p_full} vs {p_q}");
+
+    let missing = dir.path().join("nope");
+    let bad = dir.path().join("bad.ply");
+    let (ok, _, err) = svraster(&[
+        "export",
+        missing.to_str().unwrap(),
+        "--out",
+        bad.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("not found"), "{err}");
+    assert!(!bad.exists());
+}

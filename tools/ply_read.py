@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
-"""Reads a binary little-endian triangle-mesh PLY with numpy (independently of our Rust
-writer) and prints one JSON object: vertex and face counts, the vertex properties, the
-bounding box, the total area, and the number of edges not shared by exactly two faces.
+"""Reads a binary little-endian PLY (a triangle mesh, or a point cloud such as
+`svraster export --format ply`) with numpy, independently of our Rust writers, and
+prints one JSON object: vertex and face counts, the vertex properties, the bounding box,
+and for meshes the total area and the number of edges not shared by exactly two faces.
 
     python3 tools/ply_read.py mesh.ply
 """
@@ -49,7 +50,8 @@ def read(path):
 
 def main():
     m = read(sys.argv[1])
-    v, f = m["vertex"], m["face"]
+    v = m["vertex"]
+    f = m.get("face", np.zeros((0, 3), dtype=np.int64))
     xyz = np.stack([v["x"], v["y"], v["z"]], 1).astype(np.float64)
     a, b, c = xyz[f[:, 0]], xyz[f[:, 1]], xyz[f[:, 2]]
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()

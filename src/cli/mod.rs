@@ -2,6 +2,7 @@
 
 mod bench;
 mod bench_sort;
+mod export;
 mod info;
 mod mesh;
 mod plot;
@@ -300,6 +301,18 @@ enum Command {
         #[command(flatten)]
         source: DataArgs,
     },
+    /// Export a model for other tools: `ply` (one point per voxel: centre, size, level,
+    /// density, DC colour; world coordinates) or `quantized` (an 8-bit checkpoint, ~70 %
+    /// smaller, that render, eval, mesh and the viewer load like any model).
+    Export {
+        /// A .safetensors model or a run directory holding model.safetensors.
+        model: PathBuf,
+        #[arg(long, value_enum, default_value = "ply")]
+        format: export::ExportFormat,
+        /// The file to write (atomically).
+        #[arg(long)]
+        out: PathBuf,
+    },
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -316,6 +329,7 @@ pub fn run() -> anyhow::Result<()> {
     match cli.cmd {
         Command::Info { json } => info::run(&ctx, json)?,
         Command::Bench { what } => bench::run(&ctx, what)?,
+        Command::Export { model, format, out } => export::run(&model, format, &out)?,
         Command::Demo {
             out,
             size,

@@ -44,6 +44,15 @@
 //! | `world_center` | JSON array `[x,y,z]` (optional: `[0,0,0]`); with `world_scale` (optional: 1) the capture's frame: model = (world − world_center) / world_scale; cameras of the capture are mapped so before rendering, depths scale back by `world_scale` |
 //! | `world_scale`  | number > 0 (optional: 1), written as f64 text               |
 //!
+//! | `quantized`    | `kmeans8` (optional): an 8-bit file, see below              |
+//!
+//! An 8-bit quantized checkpoint ([`save_quantized`], metadata `quantized` = `kmeans8`)
+//! replaces `geo_grid_pts`, `sh0` and `shs` by U8 codes of the same shapes
+//! (`geo_grid_pts_q`, `sh0_q`, `shs_q`) and per-channel codebooks F32 `[channels, 256]`
+//! (`geo_grid_pts_codebook` with 1 channel, `sh0_codebook` with 3, `shs_codebook` with
+//! `3·((D+1)²−1)` in `shs`'s (coefficient, rgb) order); value = codebook[channel][code].
+//! [`load`] returns the dequantized scene.
+//!
 //! Numbers are written in the shortest form that reads back as the identical `f32`.
 //! Other metadata keys are ignored on load. Loading is strict: unknown tensors, gaps or
 //! overlaps in the data buffer, non-finite values, out-of-range levels, stray path bits,
@@ -90,6 +99,23 @@ const TENSORS: [(&str, &str, usize); 5] = [
     ("octlevel", "U8", 1),
 ];
 
+/// Value of the `quantized` metadata key of an 8-bit quantized checkpoint.
+pub const QUANTIZED: &str = "kmeans8";
+
+/// The tensors of a quantized checkpoint (metadata `quantized` = [`QUANTIZED`]): per
+/// channel a codebook of 256 values (`*_codebook`, F32 `[channels, 256]`) and per value
+/// the U8 index of its entry (`*_q`, the shape of the full-precision tensor).
+const QTENSORS: [(&str, &str, usize); 8] = [
+    ("octpath", "U64", 8),
+    ("geo_grid_pts_codebook", "F32", 4),
+    ("sh0_codebook", "F32", 4),
+    ("shs_codebook", "F32", 4),
+    ("geo_grid_pts_q", "U8", 1),
+    ("sh0_q", "U8", 1),
+    ("shs_q", "U8", 1),
+    ("octlevel", "U8", 1),
+];
+
 /// Writes `scene` to `path` atomically: the checkpoint goes to a temporary file in the
 /// same directory, is flushed to disk, then renamed over `path`. On any error the
 /// temporary file is removed and an existing file at `path` is left untouched. The scene
@@ -107,6 +133,49 @@ pub fn save(scene: &Scene, path: &Path) -> Result<()> {
         },
         e => e,
     })
+}
+
+/// Writes `scene` 8-bit quantized (see [`crate::scene::quantize`]; ~70 % smaller) to
+/// `path`, atomically like [`save`]. [`load`] reads it back as a full-precision scene
+/// whose values are the codebook entries.
+pub fn save_quantized(scene: &Scene, path: &Path) -> Result<()> {
+    let bytes = to_bytes_quantized(scene)?;
+    crate::fsio::write_atomic(path, &bytes)
+}
+
+/// The quantized checkpoint file's bytes for `scene` (validated first).
+pub fn to_bytes_quantized(scene: &Scene) -> Result<Vec<u8>> {
+    use super::quantize::{quantize_channels, CODES};
+    let k = scene.shs_per_voxel();
+    let (geo_b, geo_q) = quantize_channels(&scene.geo, 1);
+    let (sh0_b, sh0_q) = quantize_channels(bytemuck::cast_slice(&scene.sh0), 3);
+    let (shs_b, shs_q) = quantize_channels(&scene.shs, 3 * k);
+    let n = scene.num_voxels();
+    let m = scene.num_grid_points();
+    let shapes: [(Vec<usize>, usize); 8] = [
+        (vec![n], n * 8),
+        (vec![1, CODES], CODES * 4),
+        (vec![3, CODES], 3 * CODES * 4),
+        (vec![3 * k, CODES], 3 * k * CODES * 4),
+        (vec![m], m),
+        (vec![n, 3], 3 * n),
+        (vec![n, k, 3], 3 * k * n),
+        (vec![n], n),
+    ];
+    let mut out = encode_header_for(scene, &QTENSORS, &shapes, true)?;
+    for v in &scene.octpath {
+        out.extend_from_slice(&v.to_le_bytes());
+    }
+    for book in geo_b.iter().chain(&sh0_b).chain(&shs_b) {
+        for v in book {
+            out.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    out.extend_from_slice(&geo_q);
+    out.extend_from_slice(&sh0_q);
+    out.extend_from_slice(&shs_q);
+    out.extend_from_slice(&scene.octlevel);
+    Ok(out)
 }
 
 /// Reads and fully validates a checkpoint written by [`save`] (or any tool following the
@@ -159,6 +228,16 @@ fn data_len(scene: &Scene) -> usize {
 
 /// Validates the scene and returns the length prefix plus the padded JSON header.
 fn encode_header(scene: &Scene) -> Result<Vec<u8>> {
+    encode_header_for(scene, &TENSORS, &shapes(scene), false)
+}
+
+/// [`encode_header`] for a tensor table and its shapes and byte sizes.
+fn encode_header_for(
+    scene: &Scene,
+    table: &[(&str, &str, usize)],
+    shapes: &[(Vec<usize>, usize)],
+    quantized: bool,
+) -> Result<Vec<u8>> {
     scene.validate().map_err(|e| match e {
         Error::Invalid(m) => Error::Invalid(format!("refusing to save an invalid scene: {m}")),
         e => e,
@@ -172,6 +251,9 @@ fn encode_header(scene: &Scene) -> Result<Vec<u8>> {
     meta.insert("sh_degree".into(), scene.sh_degree.to_string().into());
     meta.insert("background".into(), vec3(scene.background).into());
     meta.insert("supersample".into(), num(scene.supersample).into());
+    if quantized {
+        meta.insert("quantized".into(), QUANTIZED.into());
+    }
     if !scene.world.is_identity() {
         let c = scene.world.center;
         meta.insert(
@@ -185,16 +267,16 @@ fn encode_header(scene: &Scene) -> Result<Vec<u8>> {
     }
     header.insert("__metadata__".into(), Value::Object(meta));
     let mut offset = 0usize;
-    for ((name, dtype, _), (shape, bytes)) in TENSORS.iter().zip(shapes(scene)) {
+    for ((name, dtype, _), (shape, bytes)) in table.iter().zip(shapes) {
         header.insert(
             (*name).into(),
             serde_json::json!({
                 "dtype": dtype,
                 "shape": shape,
-                "data_offsets": [offset, offset + bytes],
+                "data_offsets": [offset, offset + *bytes],
             }),
         );
-        offset += bytes;
+        offset += *bytes;
     }
     let mut json = serde_json::to_vec(&Value::Object(header))
         .map_err(|e| Error::Invalid(format!("cannot encode the checkpoint header: {e}")))?;
@@ -323,14 +405,6 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
     let top: Entries<Entries<Value>> =
         serde_json::from_str(text).map_err(|e| format!("header is malformed JSON: {e}"))?;
     top.check_unique("header")?;
-    for (key, _) in &top.0 {
-        if key != "__metadata__" && !TENSORS.iter().any(|t| t.0 == key) {
-            return Err(format!(
-                "unknown tensor `{key}` in the header (expected only {})",
-                TENSORS.map(|t| format!("`{}`", t.0)).join(", ")
-            ));
-        }
-    }
     let data = &bytes[8 + n..];
 
     // --- metadata
@@ -348,6 +422,31 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
     for (key, v) in &meta.0 {
         if !v.is_string() {
             return Err(format!("metadata `{key}` must be a string, got {v}"));
+        }
+    }
+    let quantized = match meta.get("quantized") {
+        None => false,
+        Some(_) => match meta_str("quantized")? {
+            QUANTIZED => true,
+            q => {
+                return Err(format!(
+                "metadata `quantized` is `{q}`, expected `{QUANTIZED}` (unsupported quantization)"
+            ))
+            }
+        },
+    };
+    let table: &[(&str, &str, usize)] = if quantized { &QTENSORS } else { &TENSORS };
+    for (key, _) in &top.0 {
+        if key != "__metadata__" && !table.iter().any(|t| t.0 == key) {
+            return Err(format!(
+                "unknown tensor `{key}` in the header (expected only {}{})",
+                table
+                    .iter()
+                    .map(|t| format!("`{}`", t.0))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+                if quantized { ", quantized" } else { "" }
+            ));
         }
     }
     let format = meta_str("format")?;
@@ -400,15 +499,24 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
     }
 
     // --- tensor entries
-    let mut infos = Vec::with_capacity(TENSORS.len());
-    for (name, dtype, _) in TENSORS {
+    let mut infos = Vec::with_capacity(table.len());
+    for (name, dtype, _) in table {
         let entry = top
             .get(name)
             .ok_or_else(|| format!("tensor `{name}` is missing"))?;
         infos.push(tensor_info(name, dtype, entry, data.len() as u64)?);
     }
-    let [octpath_i, geo_i, sh0_i, shs_i, octlevel_i] = &infos[..] else {
-        return Err("internal error: tensor table".into());
+    let info = |name: &str| {
+        &infos[table
+            .iter()
+            .position(|t| t.0 == name)
+            .expect("in the table")]
+    };
+    let (octpath_i, octlevel_i) = (info("octpath"), info("octlevel"));
+    let (geo_i, sh0_i, shs_i) = if quantized {
+        (info("geo_grid_pts_q"), info("sh0_q"), info("shs_q"))
+    } else {
+        (info("geo_grid_pts"), info("sh0"), info("shs"))
     };
     let k = (sh_coeffs(sh_degree) - 1) as u64;
     let nv = match octpath_i.shape[..] {
@@ -428,15 +536,36 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
         }
         Ok(())
     };
+    let (sh0_name, shs_name, geo_name) = if quantized {
+        ("sh0_q", "shs_q", "geo_grid_pts_q")
+    } else {
+        ("sh0", "shs", "geo_grid_pts")
+    };
     want("octlevel", octlevel_i, &[nv], "[N]")?;
-    want("sh0", sh0_i, &[nv, 3], "[N, 3]")?;
-    want("shs", shs_i, &[nv, k, 3], "[N, (D+1)²−1, 3]")?;
+    want(sh0_name, sh0_i, &[nv, 3], "[N, 3]")?;
+    want(shs_name, shs_i, &[nv, k, 3], "[N, (D+1)²−1, 3]")?;
     if geo_i.shape.len() != 1 {
-        return Err(shape_msg("geo_grid_pts", &geo_i.shape, "[M]"));
+        return Err(shape_msg(geo_name, &geo_i.shape, "[M]"));
+    }
+    let codes = super::quantize::CODES as u64;
+    if quantized {
+        for (name, channels) in [
+            ("geo_grid_pts_codebook", 1),
+            ("sh0_codebook", 3),
+            ("shs_codebook", 3 * k),
+        ] {
+            let i = info(name);
+            if i.shape != [channels, codes] {
+                return Err(format!(
+                    "tensor `{name}` has shape {:?}, expected [{channels}, {codes}]",
+                    i.shape
+                ));
+            }
+        }
     }
 
     // --- data buffer: sizes, bounds, tiling
-    for ((name, _, esize), info) in TENSORS.iter().zip(&infos) {
+    for ((name, _, esize), info) in table.iter().zip(&infos) {
         let size = info
             .shape
             .iter()
@@ -452,17 +581,17 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
             ));
         }
     }
-    let mut order: Vec<usize> = (0..TENSORS.len()).collect();
+    let mut order: Vec<usize> = (0..table.len()).collect();
     order.sort_by_key(|&i| (infos[i].begin, infos[i].end));
     let mut pos = 0u64;
     let mut prev: Option<usize> = None;
     for &i in &order {
         let info = &infos[i];
         if info.begin < pos {
-            let p = prev.map_or("?", |p| TENSORS[p].0);
+            let p = prev.map_or("?", |p| table[p].0);
             return Err(format!(
                 "tensors `{p}` and `{}` overlap in the data buffer (byte {} is inside `{p}`)",
-                TENSORS[i].0, info.begin
+                table[i].0, info.begin
             ));
         }
         if info.begin > pos {
@@ -494,12 +623,30 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
             .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
             .collect()
     };
-    let geo = f32s(geo_i);
-    let sh0: Vec<[f32; 3]> = f32s(sh0_i)
+    // Full precision, or codebook entries by code.
+    let values = |name: &str, q: &TensorInfo| -> Msg<Vec<f32>> {
+        if !quantized {
+            return Ok(f32s(q));
+        }
+        let flat = f32s(info(&format!("{name}_codebook")));
+        if let Some(i) = flat.iter().position(|v| !v.is_finite()) {
+            return Err(format!(
+                "{name}_codebook value {i} is not finite ({})",
+                flat[i]
+            ));
+        }
+        let books: Vec<[f32; super::quantize::CODES]> = flat
+            .chunks_exact(super::quantize::CODES)
+            .map(|c| c.try_into().expect("codebook rows"))
+            .collect();
+        Ok(super::quantize::dequantize_channels(&books, slice(q)))
+    };
+    let geo = values("geo_grid_pts", geo_i)?;
+    let sh0: Vec<[f32; 3]> = values("sh0", sh0_i)?
         .chunks_exact(3)
         .map(|c| [c[0], c[1], c[2]])
         .collect();
-    let shs = f32s(shs_i);
+    let shs = values("shs", shs_i)?;
     if let Some(i) = geo.iter().position(|v| !v.is_finite()) {
         return Err(format!("geo_grid_pts[{i}] is not finite ({})", geo[i]));
     }

@@ -14,6 +14,7 @@
 
 pub mod checkpoint;
 mod device;
+pub mod quantize;
 pub use device::SceneGpu;
 
 use crate::{Error, Result};

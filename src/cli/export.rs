@@ -1,0 +1,84 @@
+//! `svraster export`: a model for other tools. `ply`: one point per voxel (centre in the
+//! dataset's world coordinates, edge length, level, density and DC colour), a point cloud
+//! MeshLab, CloudCompare, Open3D or plyfile open. `quantized`: the 8-bit checkpoint of
+//! [`svraster::scene::quantize`] that `render`, `eval`, `mesh` and the viewer load like
+//! any model.
+
+use std::path::Path;
+
+use svraster::data::demo::{explin, SH_C0};
+use svraster::scene::{checkpoint, Scene};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ExportFormat {
+    Ply,
+    Quantized,
+}
+
+pub fn run(model: &Path, format: ExportFormat, out: &Path) -> anyhow::Result<()> {
+    let scene = super::render::load_model(model)?;
+    match format {
+        ExportFormat::Ply => {
+            let bytes = voxel_ply(&scene);
+            svraster::fsio::write_atomic(out, &bytes)?;
+            println!(
+                "wrote {}: {} voxels as points (x y z size level density red green blue), {:.1} MiB",
+                out.display(),
+                scene.num_voxels(),
+                bytes.len() as f64 / (1 << 20) as f64
+            );
+        }
+        ExportFormat::Quantized => {
+            let full = checkpoint::to_bytes(&scene)?.len();
+            checkpoint::save_quantized(&scene, out)?;
+            let q = std::fs::metadata(out)?.len() as usize;
+            println!(
+                "wrote {}: 8-bit quantized, {:.2} MiB ({:.0} % smaller than the {:.2} MiB checkpoint)",
+                out.display(),
+                q as f64 / (1 << 20) as f64,
+                100.0 * (1.0 - q as f64 / full as f64),
+                full as f64 / (1 << 20) as f64
+            );
+        }
+    }
+    Ok(())
+}
+
+/// The binary little-endian PLY of the voxels: `float x y z` (centre, world), `float
+/// size` (edge, world), `uchar level`, `float density` (the activated density at the
+/// centre, `explin` of the mean corner value, per model unit length), `uchar red green
+/// blue` (the degree-0 colour 0.5 + C0·sh0, clamped).
+pub fn voxel_ply(scene: &Scene) -> Vec<u8> {
+    let n = scene.num_voxels();
+    let header = format!(
+        "ply\nformat binary_little_endian 1.0\ncomment svraster-vk voxels\nelement vertex {n}\n\
+         property float x\nproperty float y\nproperty float z\nproperty float size\n\
+         property uchar level\nproperty float density\n\
+         property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+    );
+    let mut out = Vec::with_capacity(header.len() + n * 24);
+    out.extend_from_slice(header.as_bytes());
+    for i in 0..n {
+        let s = scene.voxel_size(i);
+        let lo = scene.voxel_min(i);
+        let c = scene
+            .world
+            .point_to_world(std::array::from_fn(|a| lo[a] + 0.5 * s));
+        for v in c {
+            out.extend_from_slice(&(v as f32).to_le_bytes());
+        }
+        out.extend_from_slice(&(scene.world.length_to_world(s) as f32).to_le_bytes());
+        out.push(scene.octlevel[i]);
+        let mean = scene.corners[i]
+            .iter()
+            .map(|&g| scene.geo[g as usize] as f64)
+            .sum::<f64>()
+            / 8.0;
+        out.extend_from_slice(&(explin(mean) as f32).to_le_bytes());
+        for ch in scene.sh0[i] {
+            let v = (0.5 + SH_C0 * ch as f64).clamp(0.0, 1.0);
+            out.push((v * 255.0).round() as u8);
+        }
+    }
+    out
+}
