@@ -1128,6 +1128,29 @@ fn python() -> &'static str {
     }
 }
 
+/// tools/ply_read.py's JSON summary of a PLY file (an independent numpy reader) and the
+/// vertex property names.
+fn ply_info(path: &std::path::Path) -> (serde_json::Value, Vec<String>) {
+    let py = Command::new(python())
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tools/ply_read.py"))
+        .arg(path)
+        .output()
+        .expect("run python3 (tools/setup.sh installs python3-numpy)");
+    assert!(
+        py.status.success(),
+        "tools/ply_read.py failed (needs python3-numpy: tools/setup.sh): {}",
+        String::from_utf8_lossy(&py.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&py.stdout).unwrap();
+    let props = v["properties"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_str().unwrap().to_string())
+        .collect();
+    (v, props)
+}
+
 /// `svraster mesh` on the analytically voxelized demo scene: the PLY reads back with an
 /// independent numpy reader (tools/ply_read.py), lies on the true surface (eval-mesh
 /// --demo), and bad requests fail with one clear error and no file.
@@ -1171,26 +1194,10 @@ fn mesh_of_the_voxelized_demo_is_accurate_and_readable() {
         out[..i].split_whitespace().last().unwrap().parse().unwrap()
     };
     let (nv, nt) = (count(" vertices"), count(" triangles"));
-    let py = Command::new(python())
-        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tools/ply_read.py"))
-        .arg(p)
-        .output()
-        .expect("run python3 (tools/setup.sh installs python3-numpy)");
-    assert!(
-        py.status.success(),
-        "tools/ply_read.py failed (needs python3-numpy: tools/setup.sh): {}",
-        String::from_utf8_lossy(&py.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&py.stdout).unwrap();
+    let (v, props) = ply_info(&ply);
     assert_eq!(v["vertices"].as_u64(), Some(nv));
     assert_eq!(v["faces"].as_u64(), Some(nt));
     assert!(v["max_index"].as_i64().unwrap() < nv as i64);
-    let props: Vec<&str> = v["properties"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_str().unwrap())
-        .collect();
     assert_eq!(
         props,
         ["x", "y", "z", "nx", "ny", "nz", "red", "green", "blue"]
@@ -1274,25 +1281,9 @@ fn export_ply_and_quantized_checkpoint() {
     let (ok, out, err) = svraster(&["export", run_s, "--out", ply.to_str().unwrap()]);
     assert!(ok, "{err}");
     assert!(out.contains(&format!("{voxels} voxels")), "{out}");
-    let py = Command::new(python())
-        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tools/ply_read.py"))
-        .arg(&ply)
-        .output()
-        .expect("run python3 (tools/setup.sh installs python3-numpy)");
-    assert!(
-        py.status.success(),
-        "{}",
-        String::from_utf8_lossy(&py.stderr)
-    );
-    let v: serde_json::Value = serde_json::from_slice(&py.stdout).unwrap();
+    let (v, props) = ply_info(&ply);
     assert_eq!(v["vertices"].as_u64(), Some(voxels));
     assert_eq!(v["faces"].as_u64(), Some(0));
-    let props: Vec<&str> = v["properties"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|x| x.as_str().unwrap())
-        .collect();
     assert_eq!(
         props,
         ["x", "y", "z", "size", "level", "density", "red", "green", "blue"]
