@@ -51,11 +51,19 @@ fn main() -> anyhow::Result<()> {
         },
         depth: None, // or the host's D32 depth image: rays end at its surfaces
     };
-    // Any command buffer of the device's queue family; a host records into its own.
-    ctx.submit_and_wait(|cmd| {
-        renderer.record(cmd, 0, &gpu, &view, &RenderOptions::default(), &target)?;
-        Ok(())
-    })?;
+    // Each frame: prepare (outside recording: reads the slot's previous frame, grows,
+    // allocates), then record into any command buffer of the queue family (a host's
+    // own). A first frame can find its buffers short: render until one is complete.
+    let opts = RenderOptions::default();
+    for frame in 0..8 {
+        renderer.prepare(frame, &gpu, &view, &opts, &target)?;
+        ctx.submit_and_wait(|cmd| renderer.record(cmd, frame, &gpu, &view, &opts, &target))?;
+        let stats = renderer.finished(frame).expect("just recorded");
+        if stats.complete() {
+            break;
+        }
+        eprintln!("frame {frame} incomplete ({stats:?}): growing and rendering again");
+    }
     let rgba = pixels.mapped().expect("mapped")[..(w * h * 4) as usize].to_vec();
     image::RgbaImage::from_raw(w, h, rgba)
         .expect("size")

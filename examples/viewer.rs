@@ -333,7 +333,10 @@ impl ApplicationHandler for App {
         };
         match event {
             WindowEvent::CloseRequested => el.exit(),
-            WindowEvent::Resized(_) => gpu.resized = true,
+            WindowEvent::Resized(_) => {
+                gpu.resized = true;
+                gpu.window.request_redraw();
+            }
             WindowEvent::KeyboardInput { event, .. } if event.state == ElementState::Pressed => {
                 match event.logical_key.as_ref() {
                     Key::Named(NamedKey::Escape) => el.exit(),
@@ -438,7 +441,10 @@ impl ApplicationHandler for App {
                     el.exit();
                     return;
                 }
-                gpu.window.request_redraw();
+                // Minimised: wait for the next resize instead of spinning.
+                if gpu.extent.width > 0 && gpu.extent.height > 0 {
+                    gpu.window.request_redraw();
+                }
             }
             _ => {}
         }
@@ -925,8 +931,29 @@ impl Gpu {
                 }
             };
             if self.extent.width == 0 || self.extent.height == 0 {
+                // Minimised: nothing to draw until the next resize.
+                self.resized = false;
                 return Ok(());
             }
+            if !caps
+                .supported_usage_flags
+                .contains(vk::ImageUsageFlags::TRANSFER_DST)
+            {
+                return Err(
+                    "the surface's swapchain images cannot be transfer destinations (the \
+                     viewer blits its frame into them)"
+                        .into(),
+                );
+            }
+            let composite_alpha = [
+                vk::CompositeAlphaFlagsKHR::OPAQUE,
+                vk::CompositeAlphaFlagsKHR::INHERIT,
+                vk::CompositeAlphaFlagsKHR::PRE_MULTIPLIED,
+                vk::CompositeAlphaFlagsKHR::POST_MULTIPLIED,
+            ]
+            .into_iter()
+            .find(|&a| caps.supported_composite_alpha.contains(a))
+            .ok_or("the surface supports no composite alpha mode")?;
             let formats = self
                 .surface_loader
                 .get_physical_device_surface_formats(self.pdev, self.surface)
@@ -940,7 +967,13 @@ impl Gpu {
                         vk::Format::B8G8R8A8_SRGB | vk::Format::R8G8B8A8_SRGB
                     )
                 })
-                .or(formats.first())
+                .or_else(|| {
+                    eprintln!(
+                        "warning: no sRGB swapchain format: the picture is shown too dark \
+                         (the screenshot is right)"
+                    );
+                    formats.first()
+                })
                 .copied()
                 .ok_or("the surface has no formats")?;
             let images = caps
@@ -964,7 +997,7 @@ impl Gpu {
                         .image_array_layers(1)
                         .image_usage(vk::ImageUsageFlags::TRANSFER_DST)
                         .pre_transform(caps.current_transform)
-                        .composite_alpha(vk::CompositeAlphaFlagsKHR::OPAQUE)
+                        .composite_alpha(composite_alpha)
                         .present_mode(vk::PresentModeKHR::FIFO)
                         .clipped(true)
                         .old_swapchain(old),
@@ -1101,6 +1134,47 @@ impl Gpu {
                 }
                 Err(e) => return Err(format!("vkAcquireNextImageKHR: {e}")),
             };
+            let (w, h) = (self.extent.width, self.extent.height);
+            let view = cam.view();
+            let proj = cam.projection(w, h);
+            let hv = HostView {
+                view,
+                projection: proj,
+                model: Mat4::IDENTITY,
+                width: w,
+                height: h,
+                viewport_y_up: false,
+            };
+            let dl = vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL;
+            // The field's colour goes to a 16F buffer the blend pass reads; the rays end
+            // at the host's depth, which receives the field's depth back.
+            let field_target = HostTarget {
+                color: ColorTarget::Buffer {
+                    buffer: f.field.0,
+                    offset: 0,
+                    format: ColorFormat::Rgba16Float,
+                },
+                depth: Some(DepthTarget {
+                    image: f.depth.0,
+                    layout: dl,
+                    final_layout: dl,
+                    cut_rays: true,
+                    write: Some(DepthMode::Median),
+                }),
+            };
+            if !args.no_field {
+                // Before recording: reads this slot's previous frame's stats (its fence
+                // was waited for above) and grows what it found short.
+                let report = self
+                    .hr
+                    .prepare(frame, &self.scene, &hv, &self.opts, &field_target)
+                    .map_err(|e| e.to_string())?;
+                if report.grew {
+                    eprintln!(
+                        "frame {frame}: the field's buffers grew (a frame before missed entries)"
+                    );
+                }
+            }
             dev.reset_fences(&[f.fence]).map_err(vkerr("reset fence"))?;
             let cmd = f.cmd;
             dev.reset_command_buffer(cmd, vk::CommandBufferResetFlags::empty())
@@ -1111,9 +1185,6 @@ impl Gpu {
                     .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT),
             )
             .map_err(vkerr("begin"))?;
-            let (w, h) = (self.extent.width, self.extent.height);
-            let view = cam.view();
-            let proj = cam.projection(w, h);
             let area = vk::Rect2D {
                 offset: vk::Offset2D::default(),
                 extent: self.extent,
@@ -1212,44 +1283,9 @@ impl Gpu {
             f.timestamps.mark(cmd, "mesh");
             // 2. The field, cut at the host's depth, writing its depth back.
             if !args.no_field {
-                let hv = HostView {
-                    view,
-                    projection: proj,
-                    model: Mat4::IDENTITY,
-                    width: w,
-                    height: h,
-                    viewport_y_up: false,
-                };
-                let dl = vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL;
-                let report = self
-                    .hr
-                    .record(
-                        cmd,
-                        frame,
-                        &self.scene,
-                        &hv,
-                        &self.opts,
-                        &HostTarget {
-                            color: ColorTarget::Buffer {
-                                buffer: f.field.0,
-                                offset: 0,
-                                format: ColorFormat::Rgba16Float,
-                            },
-                            depth: Some(DepthTarget {
-                                image: f.depth.0,
-                                layout: dl,
-                                final_layout: dl,
-                                cut_rays: true,
-                                write: Some(DepthMode::Median),
-                            }),
-                        },
-                    )
+                self.hr
+                    .record(cmd, frame, &self.scene, &hv, &self.opts, &field_target)
                     .map_err(|e| e.to_string())?;
-                if report.grew {
-                    eprintln!(
-                        "frame {frame}: the field's buffers grew (the frame before missed entries)"
-                    );
-                }
             }
             f.timestamps.mark(cmd, "field");
             // 3. Blend the premultiplied field over the host's colour.

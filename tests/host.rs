@@ -280,24 +280,33 @@ fn f16_to_f32(h: u16) -> f32 {
 struct Frame {
     host_z: Vec<f32>,
     written_z: Vec<f32>,
+    /// The depth after a further frame that writes (mean depth) without cutting.
+    uncut_z: Vec<f32>,
     /// Premultiplied rgba per pixel from each target, decoded to floats.
     f32_rgba: Vec<[f32; 4]>,
     srgb: Vec<[u8; 4]>,
     unorm: Vec<[u8; 4]>,
     f16_rgba: Vec<[f32; 4]>,
+    /// The frame whose rays are not cut (host depth only written).
+    uncut_rgba: Vec<[f32; 4]>,
     conv: DepthConvention,
     cam: Camera,
 }
 
+/// Offset of the 16F pixels in their buffer (a target at a non-zero offset).
+const F16_OFFSET: u64 = 256;
+
 /// One host submission: the host's depth pass, a copy of its depth, the field recorded
-/// into four colour targets (f32 buffer with depth cut and written, sRGB and UNORM
-/// images, 16F buffer), and read-backs.
+/// into five targets — f32 buffer, sRGB image (from UNDEFINED), UNORM image (from
+/// GENERAL) and 16F buffer at an offset, all cut at the host's depth, the last one also
+/// writing the median depth; then an f32 buffer with rays not cut, writing the mean
+/// depth — and read-backs.
 fn host_frame(host: &Host, scene: &Scene, cam: &Camera, reverse: bool) -> Frame {
     let ctx = host.context();
     let gpu = SceneGpu::upload(&ctx, scene).unwrap();
     let hv = host_view(cam, if reverse { None } else { Some(100.0) }, reverse);
     let (rcam, conv) = hv.camera().unwrap();
-    let mut hr = HostRenderer::new(&ctx, 4).unwrap();
+    let mut hr = HostRenderer::new(&ctx, 5).unwrap();
     let npix = (W * H) as u64;
     let tri = triangle(scene, &rcam);
     let verts = host.buffer(tri.len() as u64 * 4, vk::BufferUsageFlags::STORAGE_BUFFER);
@@ -305,8 +314,10 @@ fn host_frame(host: &Host, scene: &Scene, cam: &Camera, reverse: bool) -> Frame 
     let usage = vk::BufferUsageFlags::TRANSFER_DST;
     let host_z = host.buffer(npix * 4, usage);
     let written_z = host.buffer(npix * 4, usage);
+    let uncut_z = host.buffer(npix * 4, usage);
     let f32_buf = host.buffer(npix * 16, usage);
-    let f16_buf = host.buffer(npix * 8, usage);
+    let uncut_buf = host.buffer(npix * 16, usage);
+    let f16_buf = host.buffer(F16_OFFSET + npix * 8, usage);
     let srgb_buf = host.buffer(npix * 4, usage);
     let unorm_buf = host.buffer(npix * 4, usage);
     let depth = host.image(
@@ -326,6 +337,64 @@ fn host_frame(host: &Host, scene: &Scene, cam: &Camera, reverse: bool) -> Frame 
     let fence = host.fence(false);
     let opts = RenderOptions::default();
     let dl = vk::ImageLayout::DEPTH_ATTACHMENT_OPTIMAL;
+    let depth_target = |cut_rays, write| {
+        Some(DepthTarget {
+            image: depth.image,
+            layout: dl,
+            final_layout: dl,
+            cut_rays,
+            write,
+        })
+    };
+    let targets = [
+        HostTarget {
+            color: ColorTarget::Buffer {
+                buffer: f32_buf.buffer,
+                offset: 0,
+                format: ColorFormat::Rgba32Float,
+            },
+            depth: depth_target(true, None),
+        },
+        HostTarget {
+            color: ColorTarget::Image {
+                image: srgb.image,
+                format: ColorFormat::Rgba8Srgb,
+                layout: vk::ImageLayout::UNDEFINED,
+                final_layout: vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+            },
+            depth: depth_target(true, None),
+        },
+        HostTarget {
+            color: ColorTarget::Image {
+                image: unorm.image,
+                format: ColorFormat::Rgba8Unorm,
+                layout: vk::ImageLayout::GENERAL,
+                final_layout: vk::ImageLayout::GENERAL,
+            },
+            depth: depth_target(true, None),
+        },
+        HostTarget {
+            color: ColorTarget::Buffer {
+                buffer: f16_buf.buffer,
+                offset: F16_OFFSET,
+                format: ColorFormat::Rgba16Float,
+            },
+            depth: depth_target(true, Some(DepthMode::Median)),
+        },
+        HostTarget {
+            color: ColorTarget::Buffer {
+                buffer: uncut_buf.buffer,
+                offset: 0,
+                format: ColorFormat::Rgba32Float,
+            },
+            depth: depth_target(false, Some(DepthMode::Mean)),
+        },
+    ];
+    // Prepared before recording (prepare may use the queue; record only records).
+    for (i, t) in targets.iter().enumerate() {
+        let report = hr.prepare(i as u64, &gpu, &hv, &opts, t).unwrap();
+        assert_eq!(report.previous, None);
+    }
     let mut att_view = vk::ImageView::null();
     host.submit(cmd, fence, |cmd| {
         att_view = host.record_depth_pass(
@@ -348,55 +417,26 @@ fn host_frame(host: &Host, scene: &Scene, cam: &Camera, reverse: bool) -> Frame 
             H,
             &host_z,
         );
-        let depth_target = |write| {
-            Some(DepthTarget {
-                image: depth.image,
-                layout: dl,
-                final_layout: dl,
-                cut_rays: true,
-                write,
-            })
-        };
-        let targets = [
-            HostTarget {
-                color: ColorTarget::Buffer {
-                    buffer: f32_buf.buffer,
-                    offset: 0,
-                    format: ColorFormat::Rgba32Float,
-                },
-                depth: depth_target(None),
-            },
-            HostTarget {
-                color: ColorTarget::Image {
-                    image: srgb.image,
-                    format: ColorFormat::Rgba8Srgb,
-                    layout: vk::ImageLayout::UNDEFINED,
-                    final_layout: vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-                },
-                depth: depth_target(None),
-            },
-            HostTarget {
-                color: ColorTarget::Image {
-                    image: unorm.image,
-                    format: ColorFormat::Rgba8Unorm,
-                    layout: vk::ImageLayout::UNDEFINED,
-                    final_layout: vk::ImageLayout::GENERAL,
-                },
-                depth: depth_target(None),
-            },
-            // Last: the depth is written (the frames before read the host's own).
-            HostTarget {
-                color: ColorTarget::Buffer {
-                    buffer: f16_buf.buffer,
-                    offset: 0,
-                    format: ColorFormat::Rgba16Float,
-                },
-                depth: depth_target(Some(DepthMode::Median)),
-            },
-        ];
+        // The UNORM image is left in GENERAL by the host before the field is recorded.
+        host.transition(
+            cmd,
+            unorm.image,
+            vk::ImageLayout::UNDEFINED,
+            vk::ImageLayout::GENERAL,
+        );
         for (i, t) in targets.iter().enumerate() {
-            let report = hr.record(cmd, i as u64, &gpu, &hv, &opts, t).unwrap();
-            assert_eq!(report.previous, None);
+            hr.record(cmd, i as u64, &gpu, &hv, &opts, t).unwrap();
+            if i == 3 {
+                host.record_image_to_buffer(
+                    cmd,
+                    depth.image,
+                    vk::ImageAspectFlags::DEPTH,
+                    dl,
+                    W,
+                    H,
+                    &written_z,
+                );
+            }
         }
         host.record_image_to_buffer(
             cmd,
@@ -405,7 +445,7 @@ fn host_frame(host: &Host, scene: &Scene, cam: &Camera, reverse: bool) -> Frame 
             dl,
             W,
             H,
-            &written_z,
+            &uncut_z,
         );
         host.record_image_to_buffer(
             cmd,
@@ -427,30 +467,35 @@ fn host_frame(host: &Host, scene: &Scene, cam: &Camera, reverse: bool) -> Frame 
         );
     });
     host.wait(fence);
-    for i in 0..4 {
+    for i in 0..5 {
         let s = hr.finished(i).expect("recorded");
         assert!(s.complete(), "frame {i}: {s:?}");
     }
-    let f32s: Vec<f32> = f32_buf.read();
+    let rgba = |b: &HostBuffer| -> Vec<[f32; 4]> {
+        b.read::<f32>()
+            .chunks(4)
+            .map(|c| [c[0], c[1], c[2], c[3]])
+            .collect()
+    };
+    let bytes4 = |b: &HostBuffer| -> Vec<[u8; 4]> {
+        b.read::<u8>()
+            .chunks(4)
+            .map(|c| [c[0], c[1], c[2], c[3]])
+            .collect()
+    };
     let halves: Vec<u16> = f16_buf.read();
     let frame = Frame {
         host_z: host_z.read(),
         written_z: written_z.read(),
-        f32_rgba: f32s.chunks(4).map(|c| [c[0], c[1], c[2], c[3]]).collect(),
-        srgb: srgb_buf
-            .read::<u8>()
-            .chunks(4)
-            .map(|c| [c[0], c[1], c[2], c[3]])
-            .collect(),
-        unorm: unorm_buf
-            .read::<u8>()
-            .chunks(4)
-            .map(|c| [c[0], c[1], c[2], c[3]])
-            .collect(),
-        f16_rgba: halves
+        uncut_z: uncut_z.read(),
+        f32_rgba: rgba(&f32_buf),
+        srgb: bytes4(&srgb_buf),
+        unorm: bytes4(&unorm_buf),
+        f16_rgba: halves[(F16_OFFSET / 2) as usize..]
             .chunks(4)
             .map(|c| std::array::from_fn(|k| f16_to_f32(c[k])))
             .collect(),
+        uncut_rgba: rgba(&uncut_buf),
         conv,
         cam: rcam,
     };
@@ -461,7 +506,7 @@ fn host_frame(host: &Host, scene: &Scene, cam: &Camera, reverse: bool) -> Frame 
         host.device.destroy_image_view(att_view, None);
     }
     for b in [
-        verts, host_z, written_z, f32_buf, f16_buf, srgb_buf, unorm_buf,
+        verts, host_z, written_z, uncut_z, f32_buf, uncut_buf, f16_buf, srgb_buf, unorm_buf,
     ] {
         host.destroy_buffer(b);
     }
@@ -502,6 +547,7 @@ fn host_depth_cuts_rays_and_targets_agree() {
         let mut cut_matters = 0;
         let (mut e_rgb, mut e_depth) = (0f64, 0f64);
         let (mut field_depth, mut host_depth_kept) = (0, 0);
+        let (mut e_uncut, mut e_uncut_depth, mut uncut_field, mut uncut_host) = (0f64, 0f64, 0, 0);
         for (i, r) in refs.iter().enumerate() {
             let (px, py) = (i as u32 % W, i as u32 / W);
             let (x, y) = xy(&f.cam, px, py);
@@ -529,6 +575,35 @@ fn host_depth_cuts_rays_and_targets_agree() {
                     "pixel {i}: host depth not kept"
                 );
                 host_depth_kept += 1;
+            }
+            // Rays not cut: the uncut reference; its mean depth written where it is
+            // opaque enough and nearer than the (median-written) depth before it.
+            let u = &uncut[i];
+            let ul = linear(u);
+            let gu = f.uncut_rgba[i];
+            for c in 0..3 {
+                e_uncut = e_uncut.max((gu[c] as f64 - ul[c]).abs());
+            }
+            e_uncut = e_uncut.max((gu[3] as f64 - u.alpha).abs());
+            let before = f.conv.camera_depth(f.written_z[i] as f64, x, y);
+            let after = f.conv.camera_depth(f.uncut_z[i] as f64, x, y);
+            if u.alpha >= 0.5 + 1e-3 {
+                let mean = u.depth / u.alpha;
+                if mean < before * (1.0 - 1e-3) {
+                    e_uncut_depth = e_uncut_depth.max((after - mean).abs() / (1.0 + mean));
+                    uncut_field += 1;
+                } else if mean > before * (1.0 + 1e-3) {
+                    assert_eq!(
+                        f.uncut_z[i], f.written_z[i],
+                        "pixel {i}: nearer host depth lost"
+                    );
+                    uncut_host += 1;
+                }
+            } else if u.alpha < 0.5 - 1e-3 {
+                assert_eq!(
+                    f.uncut_z[i], f.written_z[i],
+                    "pixel {i}: host depth not kept"
+                );
             }
             // The other targets against the f32 one, encoded the same way.
             let clamp = |v: f32| (v as f64).clamp(0.0, 1.0);
@@ -571,6 +646,16 @@ fn host_depth_cuts_rays_and_targets_agree() {
         assert!(
             field_depth >= 20 && host_depth_kept >= 20,
             "{field_depth} {host_depth_kept}"
+        );
+        println!(
+            "  rays not cut: colour error {e_uncut:.2e}; mean depth written on {uncut_field} \
+             pixels (error {e_uncut_depth:.2e}), the nearer host depth kept on {uncut_host}"
+        );
+        assert!(e_uncut <= RGB_TOL, "uncut colour error {e_uncut}");
+        assert!(e_uncut_depth <= 1e-3, "uncut depth error {e_uncut_depth}");
+        assert!(
+            uncut_field >= 20 && uncut_host >= 20,
+            "{uncut_field} {uncut_host}"
         );
         frames.push(f);
     }
@@ -647,7 +732,23 @@ fn frames_in_flight_grow_and_stay_clean() {
             std::ptr::copy_nonoverlapping(tri.as_ptr() as *const u8, verts.ptr, tri.len() * 4)
         };
         let vp = (hv.projection.as_dmat4() * hv.view.as_dmat4()).as_mat4();
-        let mut report = None;
+        let target = HostTarget {
+            color: ColorTarget::Buffer {
+                buffer: colour[s].buffer,
+                offset: 0,
+                format: ColorFormat::Rgba32Float,
+            },
+            depth: Some(DepthTarget {
+                image: depths[s].image,
+                layout: dl,
+                final_layout: dl,
+                cut_rays: true,
+                write: Some(DepthMode::Mean),
+            }),
+        };
+        let report = hr
+            .prepare(i, &gpu, &hv, &RenderOptions::default(), &target)
+            .unwrap();
         host.submit(cmds[s], fences[s], |cmd| {
             views[s] = host.record_depth_pass(
                 cmd,
@@ -669,26 +770,9 @@ fn frames_in_flight_grow_and_stay_clean() {
                 H,
                 &zs[s],
             );
-            let target = HostTarget {
-                color: ColorTarget::Buffer {
-                    buffer: colour[s].buffer,
-                    offset: 0,
-                    format: ColorFormat::Rgba32Float,
-                },
-                depth: Some(DepthTarget {
-                    image: depths[s].image,
-                    layout: dl,
-                    final_layout: dl,
-                    cut_rays: true,
-                    write: Some(DepthMode::Mean),
-                }),
-            };
-            report = Some(
-                hr.record(cmd, i, &gpu, &hv, &RenderOptions::default(), &target)
-                    .unwrap(),
-            );
+            hr.record(cmd, i, &gpu, &hv, &RenderOptions::default(), &target)
+                .unwrap();
         });
-        let report = report.unwrap();
         match i {
             0..3 => assert_eq!(report.previous, None, "frame {i}"),
             3..6 => {

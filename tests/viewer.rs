@@ -18,19 +18,19 @@ fn profile_dir() -> PathBuf {
     exe.parent().unwrap().parent().unwrap().to_path_buf()
 }
 
-/// Builds the example in this test's profile (`cargo test --test viewer` alone does not
+/// Builds an example in this test's profile (`cargo test --test viewer` alone does not
 /// build examples; a no-op when it is up to date) and returns its path.
-fn viewer() -> PathBuf {
+fn example(name: &str) -> PathBuf {
     let dir = profile_dir();
     let mut cmd = Command::new(env!("CARGO"));
-    cmd.args(["build", "--example", "viewer"])
+    cmd.args(["build", "--example", name])
         .current_dir(env!("CARGO_MANIFEST_DIR"));
     if dir.file_name().is_some_and(|n| n == "release") {
         cmd.arg("--release");
     }
     let status = cmd.status().expect("run cargo");
-    assert!(status.success(), "cargo build --example viewer failed");
-    dir.join("examples").join("viewer")
+    assert!(status.success(), "cargo build --example {name} failed");
+    dir.join("examples").join(name)
 }
 
 fn screenshot(viewer: &Path, model: &Path, out: &Path, extra: &[&str]) -> image::RgbaImage {
@@ -77,7 +77,7 @@ fn viewer_composites_the_field_with_its_own_mesh() {
     let scene = svraster::data::demo::voxelize(5, 1).unwrap();
     let model = dir.path().join("model.safetensors");
     svraster::scene::checkpoint::save(&scene, &model).unwrap();
-    let viewer = viewer();
+    let viewer = example("viewer");
     let both = screenshot(&viewer, &model, &dir.path().join("both.png"), &[]);
     let field = screenshot(
         &viewer,
@@ -124,4 +124,33 @@ fn viewer_composites_the_field_with_its_own_mesh() {
         covering >= 30,
         "the field covers the mesh on only {covering} pixels"
     );
+}
+
+/// README's embedding snippet (examples/embed.rs) runs: a 640×480 PNG with the field
+/// over transparency.
+#[test]
+fn embed_example_writes_the_field_over_transparency() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = svraster::data::demo::voxelize(5, 1).unwrap();
+    let model = dir.path().join("model.safetensors");
+    svraster::scene::checkpoint::save(&scene, &model).unwrap();
+    let out = dir.path().join("embed.png");
+    let o = Command::new(example("embed"))
+        .arg(&model)
+        .arg(&out)
+        .env("SVRASTER_VALIDATION", "1")
+        .output()
+        .expect("run embed");
+    let log = format!(
+        "{}{}",
+        String::from_utf8_lossy(&o.stdout),
+        String::from_utf8_lossy(&o.stderr)
+    );
+    assert!(o.status.success(), "embed failed: {log}");
+    let img = image::open(&out).expect("PNG").to_rgba8();
+    assert_eq!(img.dimensions(), (640, 480));
+    let opaque = img.pixels().filter(|p| p[3] == 255).count();
+    let clear = img.pixels().filter(|p| p[3] == 0).count();
+    println!("embed: {opaque} opaque and {clear} transparent pixels; {log}");
+    assert!(opaque > 1000 && clear > 1000, "{opaque} {clear}");
 }

@@ -115,7 +115,7 @@ void pixel_ray(FrameParams P, uvec2 pix, out vec3 rd, out float rd_norm) {
 float host_t_far(FrameParams P, uvec2 pix, float rd_norm) {
     float inf = uintBitsToFloat(0x7f800000u);
     if (uint64_t(P.host_depth) == 0ul) return inf;
-    uvec2 op = min(uvec2(vec2(pix) / P.ss_scale), P.out_size - 1u);
+    uvec2 op = min(uvec2((vec2(pix) + 0.5) / P.ss_scale), P.out_size - 1u);
     float z = P.host_depth.v[op.y * P.out_size.x + op.x];
     vec2 xy = (vec2(pix) + 0.5 - P.intr.zw) / P.intr.xy;
     float a = dot(P.depth_map.xyz, vec3(xy, 1.0));

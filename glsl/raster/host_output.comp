@@ -3,9 +3,8 @@
 // premultiplied linear light (the model's colours are sRGB-encoded display values, as
 // the photos it was trained on: α·decode(C/α)), packed for the host's colour target
 // (sRGB targets store encode(α·linear)), and optionally the depth in
-// the host's convention. The field writes a depth where its alpha reaches 0.5 in front
-// of the host's surface (median or mean depth, as chosen); elsewhere the host's own
-// depth passes through (or, without host depth, the clear value).
+// the host's convention: where the field's alpha reaches 0.5 its median or mean depth,
+// or the host's own where that is nearer; elsewhere the host's depth passes through.
 #include "raster_params.glsl"
 layout(local_size_x = 256) in;
 
@@ -13,10 +12,11 @@ layout(push_constant) uniform Push {
     FrameParams P;
     U32s color;        // packed pixels, row-major: 1 word (8-bit), 2 (16F) or 4 (32F)
     F32s depth;        // 0: no depth output
+    F32s host_depth;   // the host's depth values (0: none)
     uint format;       // HOST_*
     uint depth_mode;   // HOST_DEPTH_*
     float depth_clear; // the host's "nothing here" depth (1 standard, 0 reverse-Z)
-    uint pad;
+    uint reverse;      // 1: reverse-Z (nearer = larger)
 } pc;
 
 float srgb_encode(float x) {
@@ -52,15 +52,33 @@ void main() {
     }
 
     if (uint64_t(pc.depth) != 0ul) {
-        float z = uint64_t(P.host_depth) != 0ul ? P.host_depth.v[p] : pc.depth_clear;
-        if (c.a >= 0.5) {
-            float d = pc.depth_mode == HOST_DEPTH_MEAN ? img.v[CH_DEPTH * npix + p] / c.a
-                                                       : img.v[CH_DMED * npix + p];
-            uvec2 o = uvec2(p % W, p / W);
-            vec2 xy = ((vec2(o) + 0.5) * P.ss_scale - P.intr.zw) / P.intr.xy;
-            if (d > 0.0) {
-                z = clamp(dot(P.depth_map.xyz, vec3(xy, 1.0)) + P.depth_map.w / d, 0.0, 1.0);
+        bool has_host = uint64_t(pc.host_depth) != 0ul;
+        float z = has_host ? pc.host_depth.v[p] : pc.depth_clear;
+        // The field's surface depth: the nearest over the render pixels inside this
+        // output pixel whose alpha reaches 0.5 (one pixel without supersampling; a
+        // filtered median would mix in pixels without a surface).
+        uvec2 o = uvec2(p % W, p / W);
+        uvec2 lo = uvec2(floor(vec2(o) * P.ss_scale));
+        uvec2 hi = min(uvec2(ceil(vec2(o + 1u) * P.ss_scale)), P.render_size);
+        hi = max(hi, lo + 1u);
+        uint RW = P.render_size.x, rpix = RW * P.render_size.y;
+        float dmin = uintBitsToFloat(0x7f800000u);
+        for (uint y = lo.y; y < hi.y; ++y) {
+            for (uint x = lo.x; x < hi.x; ++x) {
+                uint q = y * RW + x;
+                float a = P.img.v[CH_T * rpix + q];
+                if (a < 0.5) continue;
+                float dq = pc.depth_mode == HOST_DEPTH_MEAN ? P.img.v[CH_DEPTH * rpix + q] / a
+                                                           : P.img.v[CH_DMED * rpix + q];
+                if (dq > 0.0) dmin = min(dmin, dq);
             }
+        }
+        if (dmin < uintBitsToFloat(0x7f800000u)) {
+            vec2 xy = ((vec2(o) + 0.5) * P.ss_scale - P.intr.zw) / P.intr.xy;
+            float zf = clamp(dot(P.depth_map.xyz, vec3(xy, 1.0)) + P.depth_map.w / dmin, 0.0, 1.0);
+            // The nearer of the field and the host (rays cut at the host's depth are
+            // always in front of it; without the cut the host may be nearer).
+            z = !has_host ? zf : (pc.reverse != 0u ? max(zf, z) : min(zf, z));
         }
         pc.depth.v[p] = z;
     }

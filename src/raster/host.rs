@@ -1,22 +1,26 @@
 //! Rendering inside a host engine's frame: the host's camera matrices, its colour and
 //! depth images, its command buffers, its device.
 //!
-//! A [`HostRenderer`] records a frame of a trained model into a command buffer the host
-//! owns and submits ([`HostRenderer::record`]). It keeps one set of frame resources per
-//! frame in flight (slot `frame_index % frames_in_flight`), so recording never waits on
-//! the device; what a frame found short (more entries than its buffers hold, longer
-//! tile lists than its recorded chunks) is read when its slot comes round again and the
-//! slot grows before that next frame ([`HostFrameReport`]): one incomplete frame, never
-//! a device loss.
+//! A [`HostRenderer`] keeps one set of frame resources per frame in flight (slot
+//! `frame_index % frames_in_flight`). Each frame is two calls:
+//! [`HostRenderer::prepare`] (before the host records; reads the slot's previous frame's
+//! stats, grows what that frame found short — more entries than its buffers held,
+//! longer tile lists than its recorded chunks — and allocates; it submits one-time
+//! initialisation to the context's queue and waits for it only when it allocates: a
+//! slot's first frame, growth, a larger view) and [`HostRenderer::record`] (records
+//! commands into the host's command buffer: no allocation, no submission, no wait). A
+//! shortfall found by one slot is applied to every slot at its next `prepare`, so it
+//! costs at most one incomplete frame per slot, never a device loss
+//! ([`HostFrameReport`]).
 //!
 //! # Camera
 //! [`HostView`]: the host's view and projection matrices (Vulkan clip space: x right,
-//! y down, depth 0..1 — standard or reverse-Z, finite or infinite far plane, any
-//! perspective including off-centre and oblique ones) and an optional model matrix
-//! placing the field in the host's world (rigid motion and uniform scale). The pinhole
-//! camera is recovered exactly from `P·V·M`; a projection that mirrors the image (a
-//! y-up NDC without a negative-height viewport) or is orthographic is rejected with a
-//! message.
+//! y down, depth 0..1 — standard or reverse-Z, finite or infinite far plane, centred or
+//! off-centre) and an optional model matrix placing the field in the host's world
+//! (rigid motion and uniform scale). The pinhole camera is recovered exactly from
+//! `P·V·M`; the near plane is the one on the optical axis (an oblique near plane is not
+//! followed). A projection that mirrors the image (a y-up NDC without a negative-height
+//! viewport), has skew or is orthographic is rejected with a message.
 //!
 //! # Colour and depth
 //! The colour target (an image of a [`ColorFormat`], or a buffer with the same packed
@@ -25,13 +29,14 @@
 //! model's colours are sRGB-encoded display values (those of the photos it was trained
 //! on), so a pixel of composited colour `C` and alpha `α` is written as
 //! `α·srgb_decode(C/α)`; float targets take that unclamped, `Rgba8Unorm` clamped to
-//! 0..1, and `Rgba8Srgb` stores its sRGB encoding (the hardware decodes it back). With a
-//! [`DepthTarget`] (`D32_SFLOAT`) whose `cut_rays` is set, every ray ends at the host's
-//! depth: voxels behind the host's surface are not composited and a voxel straddling
-//! it contributes only its part in front. With `write` set, the depth image receives
-//! the field's depth in the host's convention where the field's alpha reaches 0.5
-//! (median or mean depth); elsewhere the host's depth is kept (or the clear value, 1
-//! or 0 for reverse-Z, when rays are not cut).
+//! 0..1, and `Rgba8Srgb` stores its sRGB encoding (the hardware decodes it back).
+//!
+//! A [`DepthTarget`] (`D32_SFLOAT`) with `cut_rays` ends every ray at the host's depth:
+//! voxels behind the host's surface are not composited and a voxel straddling it
+//! contributes only its part in front. With `write` set, the image receives, where the
+//! field's alpha reaches 0.5, the nearer of the field's depth (median or mean, in the
+//! host's convention; with supersampling the nearest over the pixel's sub-pixels that
+//! reach 0.5) and the host's own; elsewhere the host's value is kept.
 //!
 //! # Synchronisation contract
 //! The recorded commands are compute dispatches, buffer and image copies and fills.
@@ -43,10 +48,12 @@
 //! depth attachment `DEPTH_STENCIL_ATTACHMENT_OPTIMAL` or `DEPTH_ATTACHMENT_OPTIMAL`;
 //! `UNDEFINED` for a colour image whose contents are to be replaced) and are left in
 //! `final_layout`. A colour image needs `TRANSFER_DST` usage, a depth image
-//! `TRANSFER_SRC` (cut) and `TRANSFER_DST` (write), a colour buffer `TRANSFER_DST`. All
-//! recorded work must run on the queue family of the [`Context`]. Before recording
-//! frame `i`, the host must have waited for the submission that contained frame
-//! `i − frames_in_flight` (its usual per-frame fence); nothing else is required.
+//! `TRANSFER_SRC` and (to be written) `TRANSFER_DST`, a colour buffer `TRANSFER_DST`.
+//! All recorded work must run on the queue family of the [`Context`]. Before `prepare`
+//! of frame `i`, the host must have waited for the submission that contained the
+//! slot's previous frame (`i − frames_in_flight`, its usual per-frame fence); `prepare`
+//! may use the context's queue (see above), so call it from the thread that submits to
+//! that queue, outside `Context::submit_and_wait`.
 
 use ash::vk;
 use glam::{DMat4, DVec3, DVec4, Mat4};
@@ -287,7 +294,7 @@ pub enum DepthMode {
 }
 
 /// Where the colour goes.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ColorTarget {
     /// A 2-D colour image of the view's size (mip 0, layer 0).
     Image {
@@ -305,7 +312,7 @@ pub enum ColorTarget {
 }
 
 /// The host's depth image (`D32_SFLOAT`, the view's size, mip 0, layer 0).
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DepthTarget {
     pub image: vk::Image,
     pub layout: vk::ImageLayout,
@@ -317,13 +324,13 @@ pub struct DepthTarget {
 }
 
 /// A frame's targets.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct HostTarget {
     pub color: ColorTarget,
     pub depth: Option<DepthTarget>,
 }
 
-/// What [`HostRenderer::record`] found about the slot's previous frame.
+/// What [`HostRenderer::prepare`] found about the slot's previous frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct HostFrameReport {
     /// The stats of the previous frame recorded in this slot (complete once its
@@ -340,13 +347,30 @@ struct Slot {
     depth_out: GrowBuffer,
     /// The frame's stats words, copied here at its end.
     readback: Buffer,
-    pending: Option<Plan>,
+    /// The frame last recorded here and its plan (its stats are in `readback` once its
+    /// submission completed).
+    pending: Option<(u64, Plan)>,
+    /// What [`HostRenderer::prepare`] set this slot up for.
+    prepared: Option<Prepared>,
+}
+
+struct Prepared {
+    frame: u64,
+    view: HostView,
+    opts: RenderOptions,
+    target: HostTarget,
+    cam: Camera,
+    conv: DepthConvention,
 }
 
 /// Records frames of a model into a host's command buffers (see the module docs).
 pub struct HostRenderer {
     ctx: Context,
     slots: Vec<Slot>,
+    /// Capacities any slot found it needed: every slot grows to them at its next
+    /// `prepare`, so a shortfall costs one incomplete frame per slot at most.
+    min_entries: u64,
+    min_chunks: u32,
 }
 
 impl HostRenderer {
@@ -372,12 +396,15 @@ impl HostRenderer {
                     depth_out: GrowBuffer::new("host.depth-out"),
                     readback: ctx.buffer("host.stats", STATS_WORDS as u64 * 4, Memory::Readback)?,
                     pending: None,
+                    prepared: None,
                 })
             })
             .collect::<Result<Vec<_>>>()?;
         Ok(HostRenderer {
             ctx: ctx.clone(),
             slots,
+            min_entries: 0,
+            min_chunks: 1,
         })
     }
 
@@ -389,11 +416,14 @@ impl HostRenderer {
         }
     }
 
-    /// The stats of frame `frame_index` (the latest frame recorded in its slot), once
-    /// the host has waited for its submission; `None` if none is pending there.
+    /// The stats of frame `frame_index` once the host has waited for its submission;
+    /// `None` unless it is the latest frame recorded in its slot.
     pub fn finished(&self, frame_index: u64) -> Option<FrameStats> {
         let slot = &self.slots[(frame_index % self.slots.len() as u64) as usize];
-        let plan = slot.pending?;
+        let (frame, plan) = slot.pending?;
+        if frame != frame_index {
+            return None;
+        }
         let words: &[u32] = bytemuck::cast_slice(
             &slot.readback.mapped().expect("readback memory is mapped")[..STATS_WORDS * 4],
         );
@@ -415,9 +445,74 @@ impl HostRenderer {
             .sum()
     }
 
-    /// Records frame `frame_index` of `scene` seen by `view` into `cmd` (see the module
-    /// docs for the synchronisation contract). Uses slot `frame_index % frames_in_flight`,
-    /// whose previous frame must have completed.
+    /// Sets slot `frame_index % frames_in_flight` up for a frame: reads the stats of the
+    /// slot's previous frame (the host must have waited for it), grows what it found
+    /// short, checks the view, options and target, and allocates what the frame needs.
+    /// Call it before recording the frame, outside any command-buffer recording that
+    /// holds the context's queue: when it allocates (a slot's first frames, growth, a
+    /// larger view) it may submit one-time initialisation to the context's queue and
+    /// wait for it; otherwise it touches no queue.
+    pub fn prepare(
+        &mut self,
+        frame_index: u64,
+        scene: &SceneGpu,
+        view: &HostView,
+        opts: &RenderOptions,
+        target: &HostTarget,
+    ) -> Result<HostFrameReport> {
+        if let Some(d) = target.depth {
+            if !d.cut_rays && d.write.is_none() {
+                return Err(Error::Invalid(
+                    "host depth target: set cut_rays, write or both (or pass no depth target)"
+                        .into(),
+                ));
+            }
+        }
+        let (cam, conv) = view.camera()?;
+        let n = self.slots.len() as u64;
+        let ctx = self.ctx.clone();
+        let mut report = HostFrameReport::default();
+        let slot = &mut self.slots[(frame_index % n) as usize];
+        if let Some((_, plan)) = slot.pending.take() {
+            let words: &[u32] = bytemuck::cast_slice(
+                &slot.readback.mapped().expect("readback memory is mapped")[..STATS_WORDS * 4],
+            );
+            let stats = FrameStats::from_words(words, &plan);
+            report.previous = Some(stats);
+            if !stats.complete() {
+                report.grew = slot.renderer.grow_for(&stats)?;
+                self.min_entries = self.min_entries.max(slot.renderer.entry_capacity() as u64);
+                self.min_chunks = self.min_chunks.max(slot.renderer.chunks);
+            }
+        }
+        slot.renderer.reserve_entries(self.min_entries)?;
+        slot.renderer.chunks = slot.renderer.chunks.max(self.min_chunks);
+        slot.renderer.prepare(scene, &cam, opts)?;
+        let npix = view.width as u64 * view.height as u64;
+        let format = match target.color {
+            ColorTarget::Image { format, .. } | ColorTarget::Buffer { format, .. } => format,
+        };
+        slot.color.ensure(&ctx, npix * format.bytes())?;
+        if let Some(d) = target.depth {
+            slot.depth_in.ensure(&ctx, npix * 4)?;
+            if d.write.is_some() {
+                slot.depth_out.ensure(&ctx, npix * 4)?;
+            }
+        }
+        slot.prepared = Some(Prepared {
+            frame: frame_index,
+            view: *view,
+            opts: *opts,
+            target: *target,
+            cam,
+            conv,
+        });
+        Ok(report)
+    }
+
+    /// Records frame `frame_index` into `cmd` after [`HostRenderer::prepare`] with the
+    /// same arguments (see the module docs for the synchronisation contract). Records
+    /// commands only: no allocation, no submission, no wait.
     pub fn record(
         &mut self,
         cmd: vk::CommandBuffer,
@@ -426,75 +521,60 @@ impl HostRenderer {
         view: &HostView,
         opts: &RenderOptions,
         target: &HostTarget,
-    ) -> Result<HostFrameReport> {
+    ) -> Result<()> {
         let n = self.slots.len() as u64;
         let ctx = self.ctx.clone();
-        let mut report = HostFrameReport::default();
-        let previous = self.finished(frame_index);
         let slot = &mut self.slots[(frame_index % n) as usize];
-        slot.pending = None;
-        if let Some(stats) = previous {
-            report.previous = Some(stats);
-            if !stats.complete() {
-                report.grew = slot.renderer.grow_for(&stats)?;
+        let p = match slot.prepared.take() {
+            Some(p)
+                if p.frame == frame_index
+                    && p.view == *view
+                    && p.opts == *opts
+                    && p.target == *target =>
+            {
+                p
             }
-        }
-        let (cam, conv) = view.camera()?;
-        slot.renderer.prepare(scene, &cam, opts)?;
+            _ => {
+                return Err(Error::Invalid(format!(
+                    "HostRenderer::record of frame {frame_index}: call HostRenderer::prepare \
+                     for this frame with the same view, options and target first"
+                )))
+            }
+        };
+        let (cam, conv) = (p.cam, p.conv);
         let npix = view.width as u64 * view.height as u64;
         let format = match target.color {
             ColorTarget::Image { format, .. } | ColorTarget::Buffer { format, .. } => format,
         };
-        slot.color.ensure(&ctx, npix * format.bytes())?;
-        // A depth target that neither cuts nor is written is not touched.
-        let depth = target.depth.filter(|d| d.cut_rays || d.write.is_some());
+        let depth = target.depth;
         let cut = depth.is_some_and(|d| d.cut_rays);
         let write = depth.and_then(|d| d.write);
-        if cut {
-            slot.depth_in.ensure(&ctx, npix * 4)?;
-        }
-        if write.is_some() {
-            slot.depth_out.ensure(&ctx, npix * 4)?;
-        }
         let dev = ctx.device();
         let colour_range = subresource(vk::ImageAspectFlags::COLOR);
         let depth_range = subresource(vk::ImageAspectFlags::DEPTH);
 
-        // Entry: the host's work is done and visible; images into transfer layouts.
+        // Entry: the host's work is done and visible; images into transfer layouts
+        // (depth: read first, then written).
         let mut entry_images = vec![];
         if let ColorTarget::Image { image, layout, .. } = target.color {
-            entry_images.push(
-                vk::ImageMemoryBarrier::default()
-                    .src_access_mask(vk::AccessFlags::MEMORY_WRITE)
-                    .dst_access_mask(vk::AccessFlags::TRANSFER_WRITE)
-                    .old_layout(layout)
-                    .new_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
-                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .image(image)
-                    .subresource_range(colour_range),
-            );
+            entry_images.push(image_barrier(
+                image,
+                colour_range,
+                layout,
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                vk::AccessFlags::MEMORY_WRITE,
+                vk::AccessFlags::TRANSFER_WRITE,
+            ));
         }
         if let Some(d) = depth {
-            // Read (cut) first, then written: TRANSFER_SRC, then TRANSFER_DST below.
-            let first = if cut {
-                vk::ImageLayout::TRANSFER_SRC_OPTIMAL
-            } else {
-                vk::ImageLayout::TRANSFER_DST_OPTIMAL
-            };
-            entry_images.push(
-                vk::ImageMemoryBarrier::default()
-                    .src_access_mask(vk::AccessFlags::MEMORY_WRITE)
-                    .dst_access_mask(
-                        vk::AccessFlags::TRANSFER_READ | vk::AccessFlags::TRANSFER_WRITE,
-                    )
-                    .old_layout(d.layout)
-                    .new_layout(first)
-                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .image(d.image)
-                    .subresource_range(depth_range),
-            );
+            entry_images.push(image_barrier(
+                d.image,
+                depth_range,
+                d.layout,
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                vk::AccessFlags::MEMORY_WRITE,
+                vk::AccessFlags::TRANSFER_READ,
+            ));
         }
         let all = [vk::MemoryBarrier::default()
             .src_access_mask(vk::AccessFlags::MEMORY_WRITE)
@@ -527,7 +607,7 @@ impl HostRenderer {
                 depth: 1,
             },
         };
-        if let (Some(d), true) = (depth, cut) {
+        if let Some(d) = depth {
             unsafe {
                 dev.cmd_copy_image_to_buffer(
                     cmd,
@@ -558,13 +638,18 @@ impl HostRenderer {
                 } else {
                     0
                 },
+                host_depth: if depth.is_some() {
+                    slot.depth_in.address()
+                } else {
+                    0
+                },
                 format: format.code(),
                 depth_mode: match write {
                     Some(DepthMode::Mean) => glsl::HOST_DEPTH_MEAN,
                     _ => glsl::HOST_DEPTH_MEDIAN,
                 },
                 depth_clear: conv.clear_value(),
-                pad: 0,
+                reverse: conv.reverse as u32,
             },
             npix as u32,
         );
@@ -598,29 +683,24 @@ impl HostRenderer {
             },
         }
         if let (Some(d), Some(_)) = (depth, write) {
-            if cut {
-                let b = [vk::ImageMemoryBarrier::default()
-                    .src_access_mask(vk::AccessFlags::TRANSFER_READ)
-                    .dst_access_mask(vk::AccessFlags::TRANSFER_WRITE)
-                    .old_layout(vk::ImageLayout::TRANSFER_SRC_OPTIMAL)
-                    .new_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
-                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .image(d.image)
-                    .subresource_range(depth_range)];
-                unsafe {
-                    dev.cmd_pipeline_barrier(
-                        cmd,
-                        vk::PipelineStageFlags::TRANSFER,
-                        vk::PipelineStageFlags::TRANSFER,
-                        vk::DependencyFlags::empty(),
-                        &[],
-                        &[],
-                        &b,
-                    );
-                }
-            }
+            let b = [image_barrier(
+                d.image,
+                depth_range,
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                vk::AccessFlags::TRANSFER_READ,
+                vk::AccessFlags::TRANSFER_WRITE,
+            )];
             unsafe {
+                dev.cmd_pipeline_barrier(
+                    cmd,
+                    vk::PipelineStageFlags::TRANSFER,
+                    vk::PipelineStageFlags::TRANSFER,
+                    vk::DependencyFlags::empty(),
+                    &[],
+                    &[],
+                    &b,
+                );
                 dev.cmd_copy_buffer_to_image(
                     cmd,
                     slot.depth_out.get().raw(),
@@ -649,17 +729,14 @@ impl HostRenderer {
             ..
         } = target.color
         {
-            exit_images.push(
-                vk::ImageMemoryBarrier::default()
-                    .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
-                    .dst_access_mask(vk::AccessFlags::MEMORY_READ | vk::AccessFlags::MEMORY_WRITE)
-                    .old_layout(vk::ImageLayout::TRANSFER_DST_OPTIMAL)
-                    .new_layout(final_layout)
-                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .image(image)
-                    .subresource_range(colour_range),
-            );
+            exit_images.push(image_barrier(
+                image,
+                colour_range,
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                final_layout,
+                vk::AccessFlags::TRANSFER_WRITE,
+                vk::AccessFlags::MEMORY_READ | vk::AccessFlags::MEMORY_WRITE,
+            ));
         }
         if let Some(d) = depth {
             let last = if write.is_some() {
@@ -667,17 +744,14 @@ impl HostRenderer {
             } else {
                 vk::ImageLayout::TRANSFER_SRC_OPTIMAL
             };
-            exit_images.push(
-                vk::ImageMemoryBarrier::default()
-                    .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
-                    .dst_access_mask(vk::AccessFlags::MEMORY_READ | vk::AccessFlags::MEMORY_WRITE)
-                    .old_layout(last)
-                    .new_layout(d.final_layout)
-                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .image(d.image)
-                    .subresource_range(depth_range),
-            );
+            exit_images.push(image_barrier(
+                d.image,
+                depth_range,
+                last,
+                d.final_layout,
+                vk::AccessFlags::TRANSFER_WRITE,
+                vk::AccessFlags::MEMORY_READ | vk::AccessFlags::MEMORY_WRITE,
+            ));
         }
         let exit = [vk::MemoryBarrier::default()
             .src_access_mask(vk::AccessFlags::TRANSFER_WRITE | vk::AccessFlags::SHADER_WRITE)
@@ -697,9 +771,28 @@ impl HostRenderer {
                 &exit_images,
             );
         }
-        slot.pending = Some(plan);
-        Ok(report)
+        slot.pending = Some((frame_index, plan));
+        Ok(())
     }
+}
+
+fn image_barrier(
+    image: vk::Image,
+    range: vk::ImageSubresourceRange,
+    old: vk::ImageLayout,
+    new: vk::ImageLayout,
+    src: vk::AccessFlags,
+    dst: vk::AccessFlags,
+) -> vk::ImageMemoryBarrier<'static> {
+    vk::ImageMemoryBarrier::default()
+        .src_access_mask(src)
+        .dst_access_mask(dst)
+        .old_layout(old)
+        .new_layout(new)
+        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+        .image(image)
+        .subresource_range(range)
 }
 
 fn subresource(aspect: vk::ImageAspectFlags) -> vk::ImageSubresourceRange {

@@ -115,9 +115,10 @@ pub(super) struct HostOutputPush {
     pub(super) params: u64,
     pub(super) color: u64,
     pub(super) depth: u64,
+    pub(super) host_depth: u64,
     pub(super) format: u32,
     pub(super) depth_mode: u32,
     pub(super) depth_clear: f32,
-    pub(super) pad: u32,
+    pub(super) reverse: u32,
 }
 push_constants!(HostOutputPush, kernels::RASTER_HOST_OUTPUT);

@@ -557,6 +557,42 @@ impl Host {
         }
     }
 
+    /// Records a colour image's transition `old` → `new` (full barrier).
+    pub fn transition(
+        &self,
+        cmd: vk::CommandBuffer,
+        image: vk::Image,
+        old: vk::ImageLayout,
+        new: vk::ImageLayout,
+    ) {
+        let b = vk::ImageMemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::MEMORY_WRITE)
+            .dst_access_mask(vk::AccessFlags::MEMORY_READ | vk::AccessFlags::MEMORY_WRITE)
+            .old_layout(old)
+            .new_layout(new)
+            .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+            .image(image)
+            .subresource_range(vk::ImageSubresourceRange {
+                aspect_mask: vk::ImageAspectFlags::COLOR,
+                base_mip_level: 0,
+                level_count: 1,
+                base_array_layer: 0,
+                layer_count: 1,
+            });
+        unsafe {
+            self.device.cmd_pipeline_barrier(
+                cmd,
+                vk::PipelineStageFlags::ALL_COMMANDS,
+                vk::PipelineStageFlags::ALL_COMMANDS,
+                vk::DependencyFlags::empty(),
+                &[],
+                &[],
+                &[b],
+            )
+        };
+    }
+
     /// Records a copy of a whole image aspect into `dst` (image in `layout`, left there),
     /// with the barriers around it.
     #[allow(clippy::too_many_arguments)]
