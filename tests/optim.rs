@@ -130,7 +130,8 @@ fn adam_matches_f64_reference() {
             lr: 1e-3,
             beta1: 0.1,
             beta2: 0.99,
-            eps: 1e-15
+            eps: 1e-15,
+            skip_zero: false,
         }
     );
     let mut rng = Rng(0xada0);
@@ -215,6 +216,83 @@ fn adam_matches_f64_reference() {
     finish(&ctx);
 }
 
+/// Selective Adam (`skip_zero`): elements whose gradient is exactly zero keep p, m and
+/// v bit for bit (dense Adam decays their moments and moves p by the momentum); the
+/// others take the dense step (the f64 reference).
+#[test]
+fn selective_adam_leaves_zero_gradient_elements_untouched() {
+    let ctx = context();
+    let adam = Adam::new(&ctx).unwrap();
+    let cfg = AdamConfig {
+        skip_zero: true,
+        ..AdamConfig::default()
+    };
+    let mut rng = Rng(0x5e1);
+    let n = 20_011usize;
+    let p0: Vec<f32> = (0..n).map(|_| rng.range(-3.0, 3.0) as f32).collect();
+    let bufs = AdamBufs::new(&ctx, &p0, &vec![0.0; n], &vec![0.0; n]);
+    let mut refs: Vec<RefAdam> = p0
+        .iter()
+        .map(|&p| RefAdam {
+            p: f64::from(p),
+            ..Default::default()
+        })
+        .collect();
+    let (mut skipped, mut stepped, mut moving) = (0, 0, 0);
+    for t in 1..=6u32 {
+        // Each step a different third of the elements has no gradient (a voxel no
+        // pixel of the view reached); after step 1 they carry non-zero moments.
+        let grads: Vec<f32> = (0..n)
+            .map(|i| {
+                if (i + t as usize).is_multiple_of(3) {
+                    0.0
+                } else {
+                    random_grad(&mut rng)
+                }
+            })
+            .collect();
+        let (p_before, m_before, v_before) = bufs.read(&ctx);
+        bufs.step(&ctx, &adam, &grads, t, &cfg);
+        let (p, m, v) = bufs.read(&ctx);
+        for i in 0..n {
+            if grads[i] == 0.0 {
+                assert_eq!(
+                    (p[i].to_bits(), m[i].to_bits(), v[i].to_bits()),
+                    (
+                        p_before[i].to_bits(),
+                        m_before[i].to_bits(),
+                        v_before[i].to_bits()
+                    ),
+                    "step {t} element {i}: a zero gradient changed the state"
+                );
+                if m_before[i] != 0.0 {
+                    moving += 1; // dense Adam would have moved this one
+                }
+                skipped += 1;
+            } else {
+                ref_adam_step(&mut refs[i], f64::from(grads[i]), t, &cfg);
+                let r = &refs[i];
+                // The reference's own bias corrections use the global step t, as the
+                // kernel does, from this element's own (sparser) history of moments.
+                let ep = (f64::from(p[i]) - r.p).abs() / (r.p.abs() + t as f64 * f64::from(cfg.lr));
+                assert!(
+                    ep <= ADAM_TOL,
+                    "step {t} element {i}: p {} vs {}",
+                    p[i],
+                    r.p
+                );
+                stepped += 1;
+            }
+        }
+    }
+    println!("selective adam: {skipped} skipped ({moving} with momentum), {stepped} stepped");
+    assert!(
+        moving > 1000,
+        "the test must skip elements dense Adam would move"
+    );
+    finish(&ctx);
+}
+
 #[test]
 fn adam_zero_gradient_is_exact_noop() {
     let ctx = context();
@@ -231,6 +309,7 @@ fn adam_zero_gradient_is_exact_noop() {
             beta1: 0.9,
             beta2: 0.999,
             eps: 0.0,
+            skip_zero: false,
         },
     ];
     for (k, cfg) in configs.iter().enumerate() {

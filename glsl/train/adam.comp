@@ -8,7 +8,8 @@
 // the largest finite float instead of becoming +inf (which would freeze p for good).
 // m = 0 gives an update of exactly 0 (never 0/0, whatever eps). A non-finite g sets
 // bit 0 (value 1) of flags[0] and leaves that element's p, m, v untouched; a non-finite
-// new p is written and sets the same bit.
+// new p is written and sets the same bit. With skip_zero (selective Adam) an element
+// whose gradient is exactly zero keeps p, m and v (only the gradient is read).
 #include "common.glsl"
 layout(local_size_x = 256) in;
 
@@ -26,6 +27,8 @@ layout(push_constant) uniform Push {
     float step;      // lr / bc1
     float rsqrt_bc2; // 1 / sqrt(bc2)
     float eps;
+    uint skip_zero;  // 1: selective Adam, an element with g == 0 is left untouched
+    uint pad;
 } pc;
 
 const float FLT_MAX = 3.402823466e38;
@@ -38,6 +41,7 @@ void main() {
         atomicOr(pc.flags.v[0], 1u);
         return;
     }
+    if (pc.skip_zero != 0u && g == 0.0) return;
     float m = pc.b1 * pc.m.v[i] + pc.omb1 * g;
     float v = min(pc.b2 * pc.v.v[i] + (pc.omb2 * g) * g, FLT_MAX);
     pc.m.v[i] = m;

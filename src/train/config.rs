@@ -78,6 +78,11 @@ pub struct TrainConfig {
     pub beta1: f32,
     pub beta2: f32,
     pub eps: f32,
+    /// Selective Adam: a parameter whose gradient is exactly zero this step (a voxel no
+    /// pixel of the view reached) keeps its value and moments; off (the default) is the
+    /// paper's dense Adam, where such parameters still move by their decaying momentum.
+    #[serde(default)]
+    pub sparse_adam: bool,
     /// Loss weights and their windows.
     pub lambda_mse: f32,
     pub lambda_ssim: f32,
@@ -182,6 +187,7 @@ impl Default for TrainConfig {
             beta1: 0.1,
             beta2: 0.99,
             eps: 1e-15,
+            sparse_adam: false,
             lambda_mse: 1.0,
             lambda_ssim: 0.02,
             lambda_t: 0.1,

@@ -28,16 +28,20 @@ pub struct AdamConfig {
     pub beta1: f32,
     pub beta2: f32,
     pub eps: f32,
+    /// Skip parameters whose gradient is exactly zero (selective Adam: no moment decay,
+    /// no update, no memory traffic beyond reading the gradient).
+    pub skip_zero: bool,
 }
 
 impl Default for AdamConfig {
-    /// lr 1e-3, β₁ 0.1, β₂ 0.99, ε 1e-15 (SVRaster's settings).
+    /// lr 1e-3, β₁ 0.1, β₂ 0.99, ε 1e-15 (SVRaster's settings), dense.
     fn default() -> Self {
         AdamConfig {
             lr: 1e-3,
             beta1: 0.1,
             beta2: 0.99,
             eps: 1e-15,
+            skip_zero: false,
         }
     }
 }
@@ -58,6 +62,8 @@ struct AdamPush {
     step: f32,
     rsqrt_bc2: f32,
     eps: f32,
+    skip_zero: u32,
+    pad: u32,
 }
 push_constants!(AdamPush, kernels::TRAIN_ADAM);
 
@@ -93,6 +99,8 @@ impl AdamPush {
             step: (f64::from(cfg.lr) / bc1) as f32,
             rsqrt_bc2: (1.0 / bc2.sqrt()) as f32,
             eps: cfg.eps,
+            skip_zero: cfg.skip_zero as u32,
+            pad: 0,
         }
     }
 }

@@ -345,6 +345,7 @@ impl Trainer {
                         beta1: cfg.beta1,
                         beta2: cfg.beta2,
                         eps: cfg.eps,
+                        skip_zero: cfg.sparse_adam,
                     },
                 );
             }
