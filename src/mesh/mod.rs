@@ -2,7 +2,7 @@
 //! into a truncated signed distance on sparse grid points, and its zero level set
 //! extracted by marching cubes over the sparse voxels.
 //!
-//! - [`extract`]: depth renders → surface cells at one level → TSDF → marching cubes.
+//! - [`extract`](mod@extract): depth renders → surface cells at one level → TSDF → marching cubes.
 //! - [`mc`]: marching cubes over sparse voxels (watertight, vertices shared on grid-point
 //!   edges).
 //! - [`metrics`]: accuracy, completeness, Chamfer distance and F-score against points.

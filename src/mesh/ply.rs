@@ -84,7 +84,7 @@ pub type PositionsAndTriangles = (Vec<[f64; 3]>, Vec<[u32; 3]>);
 
 /// Reads a binary little-endian triangle mesh: the `x, y, z` of each vertex (any scalar
 /// types; other properties skipped) and the faces (`list` of any integer count and index
-/// types; polygons fanned into triangles). The form [`write`] and most mesh tools write.
+/// types; polygons fanned into triangles). The form [`write()`] and most mesh tools write.
 pub fn read(path: &Path) -> Result<PositionsAndTriangles> {
     let bytes = std::fs::read(path).map_err(|error| Error::Io {
         path: path.display().to_string(),

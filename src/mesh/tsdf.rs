@@ -14,7 +14,7 @@
 //!
 //! The kernel runs one dispatch per view over all points, all views in one submission;
 //! views are uploaded once ([`TsdfFuser::new`]) and fused into any number of point sets
-//! (the coarse-to-fine refinement of [`super::extract`]).
+//! (the coarse-to-fine refinement of [`super::extract`](mod@super::extract)).
 
 use bytemuck::{Pod, Zeroable};
 

@@ -50,7 +50,7 @@
 //! replaces `geo_grid_pts`, `sh0` and `shs` by U8 codes of the same shapes
 //! (`geo_grid_pts_q`, `sh0_q`, `shs_q`) and per-channel codebooks F32 `[channels, 256]`
 //! (`geo_grid_pts_codebook` with 1 channel, `sh0_codebook` with 3, `shs_codebook` with
-//! `3·((D+1)²−1)` in `shs`'s (coefficient, rgb) order); value = codebook[channel][code].
+//! `3·((D+1)²−1)` in `shs`'s (coefficient, rgb) order); value = `codebook[channel][code]`.
 //! [`load`] returns the dequantized scene.
 //!
 //! Numbers are written in the shortest form that reads back as the identical `f32`.
