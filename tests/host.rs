@@ -1,4 +1,4 @@
-//! Embedding in a host engine (src/raster/host.rs): the host's matrices give back the
+//! Embedding in a host engine (src/raster/host/): the host's matrices give back the
 //! pinhole camera and depth convention; a host with its own device, depth pass and
 //! command buffers gets the field cut at its depth, premultiplied, in its formats, with
 //! its depth written (colour as premultiplied linear light: α·srgb_decode(C/α) of the

@@ -45,7 +45,7 @@ void main() {
     vec3 inv_rd = 1.0 / rd;
     uint sign = ray_sign_bits(rd);
     float t_near = P.near * rd_norm;
-    // The host's surface ends the ray (raster/host.rs); infinity without host depth.
+    // The host's surface ends the ray (raster/host/); infinity without host depth.
     float t_far = inside ? host_t_far(P, pix, rd_norm) : 0.0;
 
     vec3 C = vec3(0.0), N = vec3(0.0);

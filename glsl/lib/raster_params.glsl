@@ -36,7 +36,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     vec2 filter_radius;   // downsample filter radius, x and y (output pixels)
     ivec3 cam_int;        // camera position in finest-grid units: integer part
     int pad1;
-    // Host depth convention (raster/host.rs): a host depth value z at camera-space
+    // Host depth convention (raster/host/): a host depth value z at camera-space
     // direction (x', y', 1) and camera depth d satisfies z = dot(xyz, (x', y', 1)) + w / d.
     vec4 depth_map;
     // scene

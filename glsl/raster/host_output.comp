@@ -1,5 +1,5 @@
 #version 460
-// Host output (raster/host.rs): the frame's final image at output resolution as
+// Host output (raster/host/): the frame's final image at output resolution as
 // premultiplied linear light (the model's colours are sRGB-encoded display values, as
 // the photos it was trained on: α·decode(C/α)), packed for the host's colour target
 // (sRGB targets store encode(α·linear)), and optionally the depth in

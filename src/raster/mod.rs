@@ -110,7 +110,7 @@ struct RasterKernels {
     host_output: Kernel,
 }
 
-/// Host-frame settings of the frames recorded from now on (see `host.rs`).
+/// Host-frame settings of the frames recorded from now on (see `host/`).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct HostFrame {
     /// Device address of the host depth values at output resolution (0: none).
@@ -158,7 +158,7 @@ pub struct Renderer {
     maxw_target: u64,
     counters: Option<Buffer>,
     counters_on: bool,
-    /// Frames are recorded for a host (transparent background, host depth); see `host.rs`.
+    /// Frames are recorded for a host (transparent background, host depth); see `host/`.
     host: Option<HostFrame>,
 }
 

@@ -65,7 +65,7 @@ pub(super) struct FrameParams {
     pub(super) maxw: u64,
     /// Optional work counters (0: off), see [`Renderer::set_counters`].
     pub(super) counters: u64,
-    /// Optional host depth values at output resolution (0: off), see `host.rs`.
+    /// Optional host depth values at output resolution (0: off), see `host/`.
     pub(super) host_depth: u64,
 }
 gpu_layout!(FrameParams, FrameParams);
