@@ -1,5 +1,5 @@
 #version 460
-// One Adam step over one parameter group, thread per element (2-D grid):
+// One Adam step over one parameter group, thread per 4 consecutive elements (2-D grid):
 //   m = b1·m + (1−b1)·g;  v = b2·v + (1−b2)·g²;
 //   p −= lr/bc1 · m / (sqrt(v)/sqrt(bc2) + eps)
 // with the bias corrections bc1 = 1 − b1^t, bc2 = 1 − b2^t folded into `step` and
@@ -10,7 +10,12 @@
 // bit 0 (value 1) of flags[0] and leaves that element's p, m, v untouched; a non-finite
 // new p is written and sets the same bit. With skip_zero (selective Adam) an element
 // whose gradient is exactly zero keeps p, m and v (only the gradient is read).
+// Four elements per thread: on lavapipe a buffer access is a per-lane gather, so one
+// 16-byte access per lane moves four times the data of a scalar one (the parameter
+// buffers are 16-byte aligned; the last thread does the remainder one by one). Each
+// element's arithmetic is the scalar one, element by element.
 #include "common.glsl"
+layout(buffer_reference, std430, buffer_reference_align = 16) buffer V4s { vec4 v[]; };
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
@@ -33,23 +38,63 @@ layout(push_constant) uniform Push {
 
 const float FLT_MAX = 3.402823466e38;
 
-void main() {
-    uint i = linear_group_id() * 256u + gl_LocalInvocationID.x;
-    if (i >= pc.count) return;
-    float g = pc.grad.v[i];
+// One element: the new (p, m, v) from the old ones and g; `bad` when g or the new p
+// is not finite; `write` false when nothing changes (non-finite or skipped g).
+void step1(float g, inout float p, inout float m, inout float v, inout bool bad, out bool write) {
+    write = false;
     if (isinf(g) || isnan(g)) {
-        atomicOr(pc.flags.v[0], 1u);
+        bad = true;
         return;
     }
     if (pc.skip_zero != 0u && g == 0.0) return;
-    float m = pc.b1 * pc.m.v[i] + pc.omb1 * g;
-    float v = min(pc.b2 * pc.v.v[i] + (pc.omb2 * g) * g, FLT_MAX);
-    pc.m.v[i] = m;
-    pc.v.v[i] = v;
+    write = true;
+    m = pc.b1 * m + pc.omb1 * g;
+    v = min(pc.b2 * v + (pc.omb2 * g) * g, FLT_MAX);
     float denom = sqrt(v) * pc.rsqrt_bc2 + pc.eps;
     if (m != 0.0 && denom > 0.0) {
-        float p = pc.param.v[i] - pc.step * (m / denom);
-        pc.param.v[i] = p;
-        if (isinf(p) || isnan(p)) atomicOr(pc.flags.v[0], 1u);
+        p = p - pc.step * (m / denom);
+        if (isinf(p) || isnan(p)) bad = true;
     }
+}
+
+void main() {
+    uint q = linear_group_id() * 256u + gl_LocalInvocationID.x;
+    uint first = 4u * q;
+    if (first >= pc.count) return;
+    bool bad = false;
+    if (first + 4u <= pc.count) {
+        vec4 g = V4s(pc.grad).v[q];
+        vec4 p = V4s(pc.param).v[q];
+        vec4 m = V4s(pc.m).v[q];
+        vec4 v = V4s(pc.v).v[q];
+        bool any_write = false;
+        for (int c = 0; c < 4; ++c) {
+            float pc_ = p[c], mc = m[c], vc = v[c];
+            bool w;
+            step1(g[c], pc_, mc, vc, bad, w);
+            if (w) {
+                p[c] = pc_;
+                m[c] = mc;
+                v[c] = vc;
+            }
+            any_write = any_write || w;
+        }
+        if (any_write) {
+            V4s(pc.param).v[q] = p;
+            V4s(pc.m).v[q] = m;
+            V4s(pc.v).v[q] = v;
+        }
+    } else {
+        for (uint i = first; i < pc.count; ++i) {
+            float p = pc.param.v[i], m = pc.m.v[i], v = pc.v.v[i];
+            bool w;
+            step1(pc.grad.v[i], p, m, v, bad, w);
+            if (w) {
+                pc.param.v[i] = p;
+                pc.m.v[i] = m;
+                pc.v.v[i] = v;
+            }
+        }
+    }
+    if (bad) atomicOr(pc.flags.v[0], 1u);
 }

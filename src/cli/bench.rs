@@ -349,7 +349,8 @@ fn bench_render(
 /// Stage groups of a training iteration: the frame's stages mapped to what the issue
 /// asks for (preprocess, sort, forward), then losses, backward, optimizer.
 fn stage_group(name: &str) -> &'static str {
-    match name {
+    // Sub-stages (`backward.walk`, `optimizer.shs`, …) count towards their group.
+    match name.split('.').next().unwrap_or(name) {
         "preprocess" => "preprocess",
         "scan" | "emit_keys" | "sort" | "tile_ranges" => "sort",
         "composite" | "finalize" => "forward",
@@ -401,6 +402,9 @@ fn bench_train(
     let mut t = Trainer::new(ctx, cfg.clone(), &train, None)?;
     t.enable_timing()?;
     let mut groups: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
+    // Every timestamped part (kernel or kernel group), in recording order.
+    let mut parts: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    let mut part_order: Vec<String> = Vec::new();
     let mut total = Vec::new();
     let mut wall = Vec::new();
     // The SH degree the timed iterations actually used (reported, not assumed).
@@ -415,6 +419,10 @@ fn bench_train(
         let mut sums: BTreeMap<&'static str, f64> = BTreeMap::new();
         for (name, ms) in t.stage_times() {
             *sums.entry(stage_group(name)).or_default() += ms;
+            if !parts.contains_key(name) {
+                part_order.push(name.clone());
+            }
+            parts.entry(name.clone()).or_default().push(*ms);
         }
         total.push(sums.values().sum::<f64>());
         for (k, v) in sums {
@@ -459,6 +467,7 @@ fn bench_train(
             "median_ms_per_iter": median(&total),
             "wall_median_ms_per_iter": median(&wall),
             "stages_median_ms": med.iter().map(|(k, v)| (k.to_string(), *v)).collect::<BTreeMap<_, _>>(),
+            "parts_median_ms": part_order.iter().map(|k| (k.clone(), median(&parts[k]))).collect::<BTreeMap<_, _>>(),
             "subgroup_size": ctx.info().subgroup_size,
             "work_per_iter": work_json(&work),
         });
@@ -482,6 +491,10 @@ fn bench_train(
         );
         for (k, v) in med {
             println!("  {k:<11} {v:>9.2} ms");
+            let mine: Vec<&String> = part_order.iter().filter(|p| stage_group(p) == k).collect();
+            for p in mine.iter().filter(|_| mine.len() > 1) {
+                println!("    {p:<18} {:>9.2} ms", median(&parts[p.as_str()]));
+            }
         }
         print_work(&work, ctx.info().subgroup_size);
     }

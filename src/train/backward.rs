@@ -10,7 +10,7 @@
 
 use ash::vk;
 
-use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Memory};
+use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Memory, Timestamps};
 use crate::push_constants;
 use crate::raster::{FrameGeometry, FrameStats};
 use crate::scene::SceneGpu;
@@ -273,6 +273,23 @@ impl Backward {
         grads: &Gradients,
         losses: &EntryLosses,
     ) -> Result<()> {
+        self.record_timed(cmd, frame, stats, scene, samples, grads, losses, None)
+    }
+
+    /// [`Backward::record`] with timestamps after each part (`backward.prepare`,
+    /// `backward.walk`, `backward.voxel`) when `ts` is given.
+    #[allow(clippy::too_many_arguments)]
+    pub fn record_timed(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        frame: &FrameGeometry,
+        stats: &FrameStats,
+        scene: &SceneGpu,
+        samples: u32,
+        grads: &Gradients,
+        losses: &EntryLosses,
+        mut ts: Option<&mut Timestamps>,
+    ) -> Result<()> {
         if !(1..=3).contains(&samples) {
             return Err(Error::Invalid(format!(
                 "samples must be 1..=3, got {samples}"
@@ -325,6 +342,9 @@ impl Backward {
         let rpix = frame.render_width * frame.render_height;
         self.prepare_k.dispatch_1d(cmd, &p2, rpix);
         recorder::barrier(&ctx, cmd);
+        if let Some(t) = ts.as_deref_mut() {
+            t.mark(cmd, "backward.prepare");
+        }
         let k = &self.backward[frame.counters as usize][samples as usize - 1];
         for chunk in (0..chunks).rev() {
             k.dispatch(
@@ -339,8 +359,14 @@ impl Backward {
             );
             recorder::barrier(&ctx, cmd);
         }
+        if let Some(t) = ts.as_deref_mut() {
+            t.mark(cmd, "backward.walk");
+        }
         self.voxel.dispatch_1d(cmd, &p2, scene.voxels.max(1));
         recorder::barrier(&ctx, cmd);
+        if let Some(t) = ts {
+            t.mark(cmd, "backward.voxel");
+        }
         Ok(())
     }
 

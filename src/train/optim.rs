@@ -141,8 +141,13 @@ impl Adam {
         if count == 0 {
             return;
         }
+        assert!(
+            [param, grad, m, v].iter().all(|a| a % 16 == 0),
+            "Adam buffers must be 16-byte aligned"
+        );
         let push = AdamPush::new(param, grad, m, v, self.flags.address(), count, step, cfg);
-        self.kernel.dispatch_1d(cmd, &push, count);
+        // Four elements per invocation (glsl/train/adam.comp).
+        self.kernel.dispatch_1d(cmd, &push, count.div_ceil(4));
         recorder::barrier(&self.ctx, cmd);
     }
 

@@ -279,7 +279,7 @@ impl Trainer {
             if let Some(t) = timing.as_mut() {
                 t.1.mark(cmd, "losses");
             }
-            self.backward.record(
+            self.backward.record_timed(
                 cmd,
                 &frame,
                 &stats,
@@ -290,6 +290,7 @@ impl Trainer {
                     lambda_dist: lambda_dist / nrender as f32,
                     lambda_r: cfg.lambda_r / nrender as f32,
                 },
+                timing.as_mut().map(|t| &mut t.1),
             )?;
             if lambda_tv > 0.0 {
                 self.tv.record(
@@ -303,10 +304,11 @@ impl Trainer {
                 recorder::barrier(&ctx, cmd);
             }
             if let Some(t) = timing.as_mut() {
-                t.1.mark(cmd, "backward");
+                t.1.mark(cmd, "backward.tv");
             }
             let groups = [
                 (
+                    "optimizer.geo",
                     &self.scene.geo,
                     &self.grads.geo,
                     &self.mom[0],
@@ -314,6 +316,7 @@ impl Trainer {
                     self.schedule.lr_geo,
                 ),
                 (
+                    "optimizer.sh0",
                     &self.scene.sh0,
                     &self.grads.sh0,
                     &self.mom[1],
@@ -321,6 +324,7 @@ impl Trainer {
                     cfg.lr_sh0,
                 ),
                 (
+                    "optimizer.shs",
                     &self.scene.shs,
                     &self.grads.shs,
                     &self.mom[2],
@@ -328,7 +332,7 @@ impl Trainer {
                     cfg.lr_shs,
                 ),
             ];
-            for (p, g, m, count, lr) in groups {
+            for (label, p, g, m, count, lr) in groups {
                 if count == 0 {
                     continue;
                 }
@@ -348,11 +352,11 @@ impl Trainer {
                         skip_zero: cfg.sparse_adam,
                     },
                 );
+                if let Some(t) = timing.as_mut() {
+                    t.1.mark(cmd, label);
+                }
             }
             recorder::barrier(&ctx, cmd);
-            if let Some(t) = timing.as_mut() {
-                t.1.mark(cmd, "optimizer");
-            }
             Ok(())
         });
         if let Some(t) = timing.as_ref() {
