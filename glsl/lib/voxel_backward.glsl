@@ -1,5 +1,6 @@
 // Training backward, per voxel (kernels train/voxel_backward[_cas], from build.rs's table): the voxel's
-// accumulated ∂L/∂rgb through max(0, 0.5 + SH) to its SH coefficients (written, so
+// accumulated ∂L/∂rgb through max(0, 0.5 + SH) (the clamp read from the colour preprocess
+// stored, not recomputed from the 48 coefficients) to its SH coefficients (written, so
 // voxels off screen get zeros), ∂L/∂normal through n = ∇/|∇| and the centre gradient to
 // its 8 corner densities, and those through the corner indices into the grid points'
 // gradients (float atomics: neighbours share grid points). Adds the entry priorities.
@@ -32,16 +33,13 @@ void main() {
     vec3 drgb = vec3(B.vgrad.v[rec + VG_RGB], B.vgrad.v[rec + VG_RGB + 1u], B.vgrad.v[rec + VG_RGB + 2u]);
     vec3 dn = vec3(B.vgrad.v[rec + VG_NRM], B.vgrad.v[rec + VG_NRM + 1u], B.vgrad.v[rec + VG_NRM + 2u]);
 
-    // SH: recompute the unclamped colour to mask the max(0, .) clamp.
+    // SH: the forward's clamp max(0, 0.5 + SH) passes the gradient where its colour
+    // (stored by preprocess) is positive.
     vec3 centre = vec3(P.cs.v[4u * v], P.cs.v[4u * v + 1u], P.cs.v[4u * v + 2u]);
     float y[16];
     sh_basis(normalize(centre), degree, y);
-    vec3 raw = y[0] * vec3(P.sh0.v[3u * v], P.sh0.v[3u * v + 1u], P.sh0.v[3u * v + 2u]);
-    for (uint k = 1u; k <= nc; ++k) {
-        uint base = (v * stride + (k - 1u)) * 3u;
-        raw += y[k] * vec3(P.shs.v[base], P.shs.v[base + 1u], P.shs.v[base + 2u]);
-    }
-    drgb = mix(vec3(0.0), drgb, greaterThan(raw + 0.5, vec3(0.0)));
+    vec3 rgb = vec3(P.rgb.v[3u * v], P.rgb.v[3u * v + 1u], P.rgb.v[3u * v + 2u]);
+    drgb = mix(vec3(0.0), drgb, greaterThan(rgb, vec3(0.0)));
     for (uint c = 0u; c < 3u; ++c) B.grad_sh0.v[3u * v + c] = y[0] * drgb[c];
     for (uint k = 1u; k <= stride; ++k) {
         uint base = (v * stride + (k - 1u)) * 3u;
