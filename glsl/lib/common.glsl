@@ -13,6 +13,11 @@
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer U32s { uint v[]; };
 layout(buffer_reference, std430, buffer_reference_align = 8) buffer U64s { uint64_t v[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) buffer F32s { float v[]; };
+// A vector view of the same buffers (every buffer starts 16-byte aligned, src/gpu/buffer.rs):
+// for kernels that stream 4 consecutive elements per invocation (train/adam.comp). Measured
+// on lavapipe, vec4 records in preprocess, voxel_backward and the entry staging gained
+// nothing (their time is not in these accesses); Adam's time halved.
+layout(buffer_reference, std430, buffer_reference_align = 16) buffer V4s { vec4 v[]; };
 
 // Linear workgroup index of a (possibly 2-D) dispatch grid.
 uint linear_group_id() {

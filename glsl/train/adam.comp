@@ -15,7 +15,6 @@
 // buffers are 16-byte aligned; the last thread does the remainder one by one). Each
 // element's arithmetic is the scalar one, element by element.
 #include "common.glsl"
-layout(buffer_reference, std430, buffer_reference_align = 16) buffer V4s { vec4 v[]; };
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {

@@ -117,7 +117,10 @@ impl Context {
                 result: e,
             },
         })?;
-        let requirements = unsafe { inner.device.get_buffer_memory_requirements(raw) };
+        let mut requirements = unsafe { inner.device.get_buffer_memory_requirements(raw) };
+        // Kernels may access any buffer through 16-byte vector views (glsl/lib/common.glsl,
+        // V4s; the Adam step asserts it): every buffer starts 16-byte aligned.
+        requirements.alignment = requirements.alignment.max(16);
         let location = match memory {
             Memory::Device => MemoryLocation::GpuOnly,
             Memory::Upload => MemoryLocation::CpuToGpu,
