@@ -4,7 +4,8 @@
 
 mod common;
 
-use common::{context, finish, mean_psnr};
+use common::{context, finish, mean_psnr, Rng};
+use svraster::adapt::topology::Topology;
 use svraster::data::{self, demo};
 use svraster::train::config::{Layout, TrainConfig};
 use svraster::train::trainer::{uniform_grid, AdaptReport, Trainer};
@@ -237,5 +238,59 @@ fn uniform_layout_subdivides_everything_to_its_level() {
         .filter(|&s| s > 0)
         .collect();
     assert_eq!(splits.len(), 2, "{reports:?}");
+    finish(&ctx);
+}
+
+/// The trainer's layout change (on the device, parameters and Adam moments never leave
+/// it) gives bit for bit what `Topology::apply` gives for the host snapshot of the same
+/// model and optimiser state, and training goes on from it.
+#[test]
+fn layout_change_on_the_device_matches_the_host_snapshot() {
+    let ctx = context();
+    let dir = demo_data("layout", 32);
+    let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
+    let mut cfg = TrainConfig::preset("quick").unwrap();
+    cfg.iters = 100;
+    cfg.grid_level = 4;
+    cfg.extent = 6.0;
+    cfg.background = train.background;
+    cfg.sh_every = 0.0; // the final degree from the first step: SH moments are non-zero
+    let mut t = Trainer::new(&ctx, cfg, &train, None).unwrap();
+    for _ in 0..4 {
+        t.step(false).unwrap();
+    }
+    let before = t.scene().unwrap();
+    let state = t.optimizer_state().unwrap();
+    assert!(!before.shs.is_empty(), "stored SH degree > 0");
+    assert!(state[5].iter().any(|&v| v != 0.0), "shs moments trained");
+    let n = before.num_voxels();
+    let mut rng = Rng(23);
+    let keep: Vec<bool> = (0..n).map(|_| rng.below(5) != 0).collect();
+    let split: Vec<bool> = (0..n).map(|_| rng.below(4) == 0).collect();
+    let mut topo = Topology::new(&ctx).unwrap();
+    let (want, want_state) = topo.apply(&before, Some(&state), &keep, &split).unwrap();
+    let want_state = want_state.unwrap();
+
+    t.change_layout(&keep, &split).unwrap();
+    let got = t.scene().unwrap();
+    let got_state = t.optimizer_state().unwrap();
+    assert_eq!(got.octpath, want.octpath, "octpaths");
+    assert_eq!(got.octlevel, want.octlevel, "levels");
+    assert_eq!(got.grid_keys, want.grid_keys, "grid keys");
+    assert_eq!(got.corners, want.corners, "corners");
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert_eq!(bits(&got.geo), bits(&want.geo), "geo");
+    let flat = |v: &[[f32; 3]]| bits(&v.iter().flatten().copied().collect::<Vec<_>>());
+    assert_eq!(flat(&got.sh0), flat(&want.sh0), "sh0");
+    assert_eq!(bits(&got.shs), bits(&want.shs), "shs");
+    let names = ["geo m", "geo v", "sh0 m", "sh0 v", "shs m", "shs v"];
+    for k in 0..6 {
+        assert_eq!(bits(&got_state[k]), bits(&want_state[k]), "{}", names[k]);
+    }
+    // Training continues on the new layout (buffers sized for it).
+    let info = t.step(false).unwrap();
+    assert!(info.entries > 0);
+    t.check_finite().unwrap();
+    assert_eq!(t.voxels() as usize, want.num_voxels());
     finish(&ctx);
 }

@@ -12,7 +12,9 @@
 //         0, ½, 1 multiply exactly, so at the parent's own corners the result is
 //         exactly the parent's value.
 // info[v] = level | split << 8 | child << 9 (child 0..7, order x<<2|y<<1|z).
-// parent[8v + c] = old grid-point index of corner c of the voxel (split: of its parent).
+// src[v] = the old voxel it comes from (itself, or the parent of a child): corner c's
+// old grid point is old_corners[8·src + c]. Everything is read from the old scene's
+// device buffers (no host round trip of densities or moments).
 #include "common.glsl"
 #include "morton.glsl"
 #include "trilinear.glsl"
@@ -21,8 +23,11 @@ layout(local_size_x = 256) in;
 layout(push_constant) uniform Push {
     U64s path;      // [V] octpath of each new voxel
     U32s info;      // [V]
-    U32s parent;    // [V*8]
-    F32s old_vals;  // [G][planes] old geo (and geo m, geo v when planes == 3)
+    U32s src;       // [V] source voxel in the old scene
+    U32s old_corners;  // [old V * 8] old grid-point index of each old voxel corner
+    F32s old_geo;   // [G] old densities
+    F32s old_m;     // [G] old geo Adam m (planes == 3)
+    F32s old_v;     // [G] old geo Adam v (planes == 3)
     U64s keys;      // [8V] out: compact corner keys
     U32s vals;      // [8V] out: candidate index
     F32s cand;      // [8V][planes] out: candidate geo (and m, v)
@@ -43,9 +48,13 @@ void main() {
     uint size = 1u << (MAX_LEVEL - level);
     // Child offset inside the parent, in half-parent units (0 or 1 per axis).
     uvec3 ch = uvec3((child >> 2u) & 1u, (child >> 1u) & 1u, child & 1u);
+    uint s = pc.src.v[v];
+    uint pts[8];
+    for (uint c = 0u; c < 8u; ++c) pts[c] = pc.old_corners.v[8u * s + c];
     for (uint p = 0u; p < pc.planes; ++p) {
+        F32s plane = p == 0u ? pc.old_geo : (p == 1u ? pc.old_m : pc.old_v);
         float g[8];
-        for (uint c = 0u; c < 8u; ++c) g[c] = pc.old_vals.v[pc.parent.v[8u * v + c] * pc.planes + p];
+        for (uint c = 0u; c < 8u; ++c) g[c] = plane.v[pts[c]];
         for (uint c = 0u; c < 8u; ++c) {
             uvec3 cb = uvec3((c >> 2u) & 1u, (c >> 1u) & 1u, c & 1u);
             float val;

@@ -1,13 +1,18 @@
 //! Topology change of a scene (paper §3.2.2): prune voxels, subdivide voxels into their
-//! 8 children, and rebuild the grid points with a GPU dedup.
+//! 8 children, and rebuild the grid points with a GPU dedup — on the device:
+//! [`Topology::apply_device`] takes the scene's device buffers (and Adam moments) with
+//! per-voxel `keep` / `split` masks and returns new device buffers. Densities, SH
+//! coefficients and moments never leave the device; [`Topology::apply`] is the same
+//! change for a host [`Scene`] (upload, apply_device, download).
 //!
-//! [`Topology::apply`] takes a host [`Scene`] with per-voxel `keep` / `split` masks:
-//!
-//! 1. **Host, O(N)**: the new voxel list. Survivors keep their relative order; a split
-//!    voxel is replaced, in place, by its 8 children in child order `x<<2 | y<<1 | z`
-//!    (child `c` has octpath `parent | c << 3·(16 − level − 1)`, i.e. Morton order,
-//!    the same order as the corners). Children copy the parent's SH (sh0 and shs) and
-//!    its SH Adam moments. A `split` flag on a pruned voxel is ignored.
+//! 1. **Host, O(N), structure only**: the new voxel list. Survivors keep their relative
+//!    order; a split voxel is replaced, in place, by its 8 children in child order
+//!    `x<<2 | y<<1 | z` (child `c` has octpath `parent | c << 3·(16 − level − 1)`, i.e.
+//!    Morton order, the same order as the corners). Uploaded: octpath, level, and the
+//!    source voxel of every new voxel (20 bytes per voxel). A `split` flag on a pruned
+//!    voxel is ignored.
+//!    **GPU** (`glsl/adapt/gather_rows.comp`): every new voxel copies its source
+//!    voxel's SH (sh0 and shs) and SH Adam moments.
 //! 2. **GPU** (`glsl/adapt/topology_candidates.comp`, thread per new voxel): 8 candidate
 //!    grid points per voxel, candidate `8·voxel + corner`: the corner's key and its
 //!    density — the voxel's own grid-point value, or for a child the parent's trilinear
@@ -28,9 +33,11 @@
 //!    most 8 long; a longer one is reported as an error. (A variant splitting the merge
 //!    into a scatter to key order and a thread-per-unique-point mean measured the same
 //!    on lavapipe and needs one more kernel.)
-//! 5. Read-back of the unique count, then of the keys, densities (and geo moments) and
-//!    the corner indices. Grid points that are a corner of no surviving voxel never
-//!    become candidates, so they disappear.
+//! 5. Read-back of the unique count; the unique densities (and geo moments) and the
+//!    corner indices are copied into the new scene's buffers on the device, and only
+//!    the structure (grid keys, corner indices) is read back for the host layout.
+//!    Grid points that are a corner of no surviving voxel never become candidates, so
+//!    they disappear.
 //!
 //! Every kernel takes its arrays by device address (no 128 MiB descriptor limit), loops
 //! at most 16 times per invocation, and dispatches in 2-D grids. Buffers, the sort and
@@ -47,7 +54,7 @@ use crate::error::{Error, Result};
 use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Memory, Timestamps};
 use crate::push_constants;
 use crate::scan::{PrefixScan, SCAN_TILE};
-use crate::scene::{Scene, MAX_LEVEL, MAX_VOXELS};
+use crate::scene::{Scene, SceneGpu, MAX_LEVEL, MAX_VOXELS};
 use crate::sort::{Count, RadixSort, SortBuffers, Sorted};
 
 /// Adam moments aligned with a scene's parameters: [geo m, geo v, sh0 m, sh0 v, shs m,
@@ -63,8 +70,11 @@ const FLAG_LONG_RUN: u32 = 1;
 struct CandidatesPush {
     path: u64,
     info: u64,
-    parent: u64,
-    old_vals: u64,
+    src: u64,
+    old_corners: u64,
+    old_geo: u64,
+    old_m: u64,
+    old_v: u64,
     keys: u64,
     vals: u64,
     cand: u64,
@@ -166,31 +176,58 @@ impl CandidateBuffers {
     }
 }
 
-/// Byte layout of the upload (host → device input) buffer.
+/// Byte layout of the upload (host → device input) buffer: the new voxels' structure.
 struct InputLayout {
     path: u64,
     info: u64,
-    parent: u64,
-    old_vals: u64,
+    src: u64,
+    level: u64,
     end: u64,
 }
 
 impl InputLayout {
-    fn new(voxels: u64, old_values: u64) -> Self {
+    fn new(voxels: u64) -> Self {
         let path = 0;
         let info = (path + voxels * 8).next_multiple_of(16);
-        let parent = (info + voxels * 4).next_multiple_of(16);
-        let old_vals = (parent + voxels * 32).next_multiple_of(16);
-        let end = old_vals + old_values * 4;
+        let src = (info + voxels * 4).next_multiple_of(16);
+        let level = (src + voxels * 4).next_multiple_of(16);
+        let end = level + voxels * 4;
         InputLayout {
             path,
             info,
-            parent,
-            old_vals,
+            src,
+            level,
             end,
         }
     }
 }
+
+/// Adam moments of a scene on the device, laid out like [`Moments`]: [geo m, geo v,
+/// sh0 m, sh0 v, shs m, shs v].
+pub type DeviceMoments<'a> = [&'a Buffer; 6];
+
+/// The result of [`Topology::apply_device`].
+pub struct Changed {
+    /// The new scene's device buffers (active SH degree carried over).
+    pub scene: SceneGpu,
+    /// The moments carried to the new layout, when moments were given.
+    pub moments: Option<[Buffer; 6]>,
+    /// The new layout on the host: octpaths, levels, grid keys and corners exact; the
+    /// parameters (geo, sh0, shs) are zeros of the right sizes — the device holds them
+    /// ([`SceneGpu::download_params`] fills them in).
+    pub host: Scene,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct GatherPush {
+    index: u64,
+    src: u64,
+    dst: u64,
+    rows: u32,
+    width: u32,
+}
+push_constants!(GatherPush, kernels::ADAPT_GATHER_ROWS);
 
 /// Prune + subdivide with the grid points rebuilt on the GPU. See the module docs.
 pub struct Topology {
@@ -198,6 +235,7 @@ pub struct Topology {
     candidates: Kernel,
     heads: Kernel,
     merge: Kernel,
+    gather: Kernel,
     /// [0] unique count (scan total), [1] flags.
     counters: Buffer,
     bufs: Option<CandidateBuffers>,
@@ -220,6 +258,7 @@ impl Topology {
             candidates: Kernel::new(ctx, &kernels::ADAPT_TOPOLOGY_CANDIDATES)?,
             heads: Kernel::new(ctx, &kernels::ADAPT_DEDUP_HEADS)?,
             merge: Kernel::new(ctx, &kernels::ADAPT_DEDUP_MERGE)?,
+            gather: Kernel::new(ctx, &kernels::ADAPT_GATHER_ROWS)?,
             counters: ctx.buffer("topology.counters", 16, Memory::Device)?,
             bufs: None,
             staging: GrowBuffer::with_memory("topology.staging", Memory::Upload),
@@ -254,6 +293,10 @@ impl Topology {
     ///
     /// The input must pass [`Scene::validate`] (checked here), so the result does too.
     /// Pruning every voxel is an error (an empty scene cannot be rendered or trained).
+    ///
+    /// Host in, host out: uploads the scene, runs [`Topology::apply_device`] and
+    /// downloads the result (tests and the initial layout use it; training keeps its
+    /// model on the device).
     pub fn apply(
         &mut self,
         scene: &Scene,
@@ -261,13 +304,92 @@ impl Topology {
         keep: &[bool],
         split: &[bool],
     ) -> Result<(Scene, Option<Moments>)> {
-        let t0 = Instant::now();
-        let n = scene.num_voxels();
-        let g = scene.num_grid_points();
         check_input(scene, moments, keep, split)?;
+        let ctx = self.ctx.clone();
+        let gpu = SceneGpu::upload(&ctx, scene)?;
+        let mom_bufs = match moments {
+            None => None,
+            Some(m) => {
+                let mut v = Vec::with_capacity(6);
+                for (k, data) in m.iter().enumerate() {
+                    let name = format!("topology.moments{k}");
+                    v.push(if data.is_empty() {
+                        ctx.zeroed_buffer(&name, 4)?
+                    } else {
+                        ctx.buffer_from(&name, data)?
+                    });
+                }
+                Some(v)
+            }
+        };
+        let refs: Option<DeviceMoments> = mom_bufs.as_ref().map(|v| std::array::from_fn(|k| &v[k]));
+        let changed = self.apply_device(scene, &gpu, refs, keep, split)?;
+        drop(mom_bufs);
+        drop(gpu);
+        let mut out = changed.host;
+        changed.scene.download_params(&ctx, &mut out)?;
+        let new_moments = match changed.moments {
+            None => None,
+            Some(b) => {
+                let g = out.num_grid_points();
+                let n = out.num_voxels();
+                let nc = out.shs_per_voxel() * 3;
+                let lens = [g, g, 3 * n, 3 * n, n * nc, n * nc];
+                let mut v = Vec::with_capacity(6);
+                for (buf, len) in b.iter().zip(lens) {
+                    v.push(if len == 0 {
+                        Vec::new()
+                    } else {
+                        ctx.download(buf, 0, len)?
+                    });
+                }
+                Some(v)
+            }
+        };
+        Ok((out, new_moments))
+    }
 
-        // 1. The new voxel list (host, O(N)).
-        let nc = scene.shs_per_voxel() * 3;
+    /// [`Topology::apply`] on the device: `gpu` (and `moments`) are the scene's device
+    /// buffers, `host` its structure (octpaths, levels, corners and grid keys must
+    /// match `gpu`; its parameters are not read). Only the new voxels' structure goes up
+    /// (octpath, level, source voxel: 20 bytes per voxel) and only the unique count,
+    /// the grid keys and the corner indices come back; densities, SH coefficients and
+    /// Adam moments stay on the device. The old buffers are left as they were.
+    pub fn apply_device(
+        &mut self,
+        host: &Scene,
+        gpu: &SceneGpu,
+        moments: Option<DeviceMoments>,
+        keep: &[bool],
+        split: &[bool],
+    ) -> Result<Changed> {
+        let t0 = Instant::now();
+        let n = host.num_voxels();
+        let g = host.num_grid_points();
+        check_input(host, None, keep, split)?;
+        let nc = host.shs_per_voxel() * 3;
+        if gpu.voxels as usize != n
+            || gpu.grid_points as usize != g
+            || gpu.shs_per_voxel as usize * 3 != nc
+        {
+            return Err(Error::Invalid(format!(
+                "topology: the device scene ({} voxels, {} grid points) is not the host \
+                 layout ({n} voxels, {g} grid points)",
+                gpu.voxels, gpu.grid_points
+            )));
+        }
+        if let Some(m) = moments {
+            let need = [g, g, 3 * n, 3 * n, n * nc, n * nc];
+            if let Some(k) = (0..6).find(|&k| m[k].size() < need[k] as u64 * 4) {
+                return Err(Error::Invalid(format!(
+                    "topology: moment buffer {k} holds {} bytes, the scene needs {}",
+                    m[k].size(),
+                    need[k] * 4
+                )));
+            }
+        }
+
+        // 1. The new voxels' structure (host, O(N)).
         if n == 0 {
             return Err(Error::Invalid("the scene has no voxels to change".into()));
         }
@@ -286,7 +408,8 @@ impl Topology {
             )));
         }
         // Candidate values are indexed `candidate · planes + plane` in u32 (and the sort
-        // and scan count in u32): at most ~178 M voxels with moments, ~536 M without.
+        // and scan count in u32): at most ~178 M voxels with moments, ~536 M without;
+        // the SH gather indexes `voxel · 3·coefficients` in u32.
         let planes: u32 = if moments.is_some() { 3 } else { 1 };
         let cand_n = u32::try_from(new_n * 8)
             .ok()
@@ -294,6 +417,7 @@ impl Topology {
                 c <= RadixSort::MAX_CAPACITY
                     && c <= u32::MAX - SCAN_TILE
                     && u64::from(c) * u64::from(planes) <= u64::from(u32::MAX)
+                    && (new_n as u64) * (nc.max(3) as u64) <= u64::from(u32::MAX)
             })
             .ok_or_else(|| {
                 Error::Capacity(format!(
@@ -306,45 +430,33 @@ impl Topology {
         let mut octpath = Vec::with_capacity(new_n);
         let mut octlevel = Vec::with_capacity(new_n);
         let mut info = Vec::with_capacity(new_n);
-        let mut parent: Vec<[u32; 8]> = Vec::with_capacity(new_n);
-        let mut sh0 = Vec::with_capacity(new_n);
-        let mut shs = Vec::with_capacity(new_n * nc);
-        let mut mom_sh: Option<[Vec<f32>; 4]> =
-            moments.map(|_| std::array::from_fn(|k| Vec::with_capacity(new_n * [3, nc][k / 2])));
+        let mut src: Vec<u32> = Vec::with_capacity(new_n);
         for i in 0..n {
             if !keep[i] {
                 continue;
             }
-            let level = u32::from(scene.octlevel[i]);
+            let level = u32::from(host.octlevel[i]);
             let copies = if split[i] { 8 } else { 1 };
             for c in 0..copies {
                 if split[i] {
-                    octpath.push(scene.octpath[i] | (c as u64) << (3 * (MAX_LEVEL - level - 1)));
+                    octpath.push(host.octpath[i] | (c as u64) << (3 * (MAX_LEVEL - level - 1)));
                     octlevel.push((level + 1) as u8);
                     info.push((level + 1) | 1 << 8 | (c as u32) << 9);
                 } else {
-                    octpath.push(scene.octpath[i]);
+                    octpath.push(host.octpath[i]);
                     octlevel.push(level as u8);
                     info.push(level);
                 }
-                parent.push(scene.corners[i]);
-                sh0.push(scene.sh0[i]);
-                shs.extend_from_slice(&scene.shs[i * nc..(i + 1) * nc]);
-                if let (Some(m), Some(dst)) = (moments, mom_sh.as_mut()) {
-                    for (k, d) in dst.iter_mut().enumerate() {
-                        let w = [3, nc][k / 2];
-                        d.extend_from_slice(&m[2 + k][i * w..(i + 1) * w]);
-                    }
-                }
+                src.push(i as u32);
             }
         }
-        let finest = u32::from(octlevel.iter().copied().max().unwrap_or(1));
+        let level32: Vec<u32> = octlevel.iter().map(|&l| u32::from(l)).collect();
+        let finest = level32.iter().copied().max().unwrap_or(1);
         let shift = MAX_LEVEL - finest;
         let bits = finest + 1;
         let sort_bits = 3 * bits;
 
-        // Upload buffer: path, info, parent corners, old values ([G][geo, m, v]).
-        let layout = InputLayout::new(new_n as u64, g as u64 * u64::from(planes));
+        let layout = InputLayout::new(new_n as u64);
         let ctx = self.ctx.clone();
         {
             self.staging.ensure(&ctx, layout.end)?;
@@ -356,19 +468,12 @@ impl Topology {
                 .ok_or_else(|| Error::Gpu("topology staging buffer is not host-visible".into()))?;
             write_bytes(dst, layout.path, bytemuck::cast_slice(&octpath));
             write_bytes(dst, layout.info, bytemuck::cast_slice(&info));
-            write_bytes(dst, layout.parent, bytemuck::cast_slice(&parent));
-            match moments {
-                None => write_bytes(dst, layout.old_vals, bytemuck::cast_slice(&scene.geo)),
-                Some(m) => {
-                    // Interleaved [G][geo, m, v]: one cache line per gathered point.
-                    let vals: Vec<[f32; 3]> =
-                        (0..g).map(|k| [scene.geo[k], m[0][k], m[1][k]]).collect();
-                    write_bytes(dst, layout.old_vals, bytemuck::cast_slice(&vals));
-                }
-            }
+            write_bytes(dst, layout.src, bytemuck::cast_slice(&src));
+            write_bytes(dst, layout.level, bytemuck::cast_slice(&level32));
         }
-        drop(parent);
         drop(info);
+        drop(src);
+        drop(level32);
         self.input.ensure(&ctx, layout.end)?;
         if self.bufs.as_ref().is_none_or(|b| b.capacity < cand_n) {
             self.bufs = None;
@@ -379,9 +484,29 @@ impl Topology {
             self.bufs = Some(CandidateBuffers::new(&ctx, cap)?);
         }
         self.readback.ensure(&ctx, 16)?;
+        // The new per-voxel buffers (the SH and its moments are gathered straight into
+        // them); the per-grid-point ones wait for the unique count.
+        let nn = new_n as u64;
+        let new_octpath = ctx.buffer("scene.octpath", nn * 8, Memory::Device)?;
+        let new_level = ctx.buffer("scene.level", nn * 4, Memory::Device)?;
+        let new_sh0 = ctx.buffer("scene.sh0", nn * 12, Memory::Device)?;
+        let new_shs = ctx.buffer("scene.shs", (nn * nc as u64).max(1) * 4, Memory::Device)?;
+        let new_sh_mom: Option<[Buffer; 4]> = match moments {
+            None => None,
+            Some(_) => {
+                let mk =
+                    |name: &str, floats: u64| ctx.buffer(name, floats.max(1) * 4, Memory::Device);
+                Some([
+                    mk("sh0.adam-m", nn * 3)?,
+                    mk("sh0.adam-v", nn * 3)?,
+                    mk("shs.adam-m", nn * nc as u64)?,
+                    mk("shs.adam-v", nn * nc as u64)?,
+                ])
+            }
+        };
         let t1 = Instant::now();
 
-        // 2.-4. One submission: upload, candidates, sort, dedup.
+        // 2.-4. One submission: upload, candidates, SH gather, sort, dedup.
         let (Some(b), Some(staging), Some(input), Some(readback)) = (
             self.bufs.as_ref(),
             self.staging.buffer(),
@@ -391,6 +516,7 @@ impl Topology {
             return Err(Error::Gpu("topology buffers missing".into()));
         };
         let ts = &mut self.timestamps;
+        let gather = &self.gather;
         let sorted = ctx.submit_and_wait(|cmd| {
             ts.begin(cmd);
             recorder::copy(&ctx, cmd, staging, input, 0, 0, layout.end);
@@ -398,13 +524,18 @@ impl Topology {
             recorder::barrier(&ctx, cmd);
             ts.mark(cmd, "upload");
             let a = input.address();
+            let geo = gpu.geo.address();
+            let (gm, gv) = moments.map_or((geo, geo), |m| (m[0].address(), m[1].address()));
             self.candidates.dispatch_1d(
                 cmd,
                 &CandidatesPush {
                     path: a + layout.path,
                     info: a + layout.info,
-                    parent: a + layout.parent,
-                    old_vals: a + layout.old_vals,
+                    src: a + layout.src,
+                    old_corners: gpu.corners.address(),
+                    old_geo: geo,
+                    old_m: gm,
+                    old_v: gv,
                     keys: b.keys.address(),
                     vals: b.vals.address(),
                     cand: b.cand.address(),
@@ -415,6 +546,33 @@ impl Topology {
                 },
                 new_n as u32,
             );
+            let mut rows = vec![(&gpu.sh0, &new_sh0, 3u32)];
+            if nc > 0 {
+                rows.push((&gpu.shs, &new_shs, nc as u32));
+            }
+            if let (Some(m), Some(nm)) = (moments, new_sh_mom.as_ref()) {
+                rows.push((m[2], &nm[0], 3));
+                rows.push((m[3], &nm[1], 3));
+                if nc > 0 {
+                    rows.push((m[4], &nm[2], nc as u32));
+                    rows.push((m[5], &nm[3], nc as u32));
+                }
+            }
+            for (from, to, width) in rows {
+                gather.dispatch_1d(
+                    cmd,
+                    &GatherPush {
+                        index: a + layout.src,
+                        src: from.address(),
+                        dst: to.address(),
+                        rows: new_n as u32,
+                        width,
+                    },
+                    new_n as u32 * width,
+                );
+            }
+            recorder::copy(&ctx, cmd, input, &new_octpath, layout.path, 0, nn * 8);
+            recorder::copy(&ctx, cmd, input, &new_level, layout.level, 0, nn * 4);
             recorder::barrier(&ctx, cmd);
             ts.mark(cmd, "candidates");
             let which = b.sort.record(
@@ -480,7 +638,7 @@ impl Topology {
         })?;
         let t2 = Instant::now();
 
-        // 5. Errors, unique count, read-back.
+        // 5. Errors and the unique count; the grid-point buffers; structure read-back.
         let sort_errors = b.sort.take_errors()?;
         let scan_errors = b.scan.take_errors()?;
         if sort_errors | scan_errors != 0 {
@@ -507,8 +665,17 @@ impl Topology {
                 "grid-point dedup returned {unique} unique points for {cand_n} candidates"
             )));
         }
-        let off_vals = (unique as u64 * 8).next_multiple_of(16);
-        let off_corners = (off_vals + unique as u64 * 4 * u64::from(planes)).next_multiple_of(16);
+        let u = unique as u64;
+        let new_geo = ctx.buffer("scene.geo", u * 4, Memory::Device)?;
+        let new_corners = ctx.buffer("scene.corners", u64::from(cand_n) * 4, Memory::Device)?;
+        let new_geo_mom: Option<[Buffer; 2]> = match moments {
+            None => None,
+            Some(_) => Some([
+                ctx.buffer("geo.adam-m", u * 4, Memory::Device)?,
+                ctx.buffer("geo.adam-v", u * 4, Memory::Device)?,
+            ]),
+        };
+        let off_corners = (u * 8).next_multiple_of(16);
         let rb_end = off_corners + u64::from(cand_n) * 4;
         self.readback.ensure(&ctx, rb_end)?;
         let readback = self
@@ -520,57 +687,59 @@ impl Topology {
             Sorted::Alternate => &b.keys,
         };
         ctx.submit_and_wait(|cmd| {
-            recorder::copy(&ctx, cmd, free_keys, readback, 0, 0, unique as u64 * 8);
-            for p in 0..u64::from(planes) {
-                recorder::copy(
-                    &ctx,
-                    cmd,
-                    &b.out_vals,
-                    readback,
-                    p * u64::from(cand_n) * 4,
-                    off_vals + p * unique as u64 * 4,
-                    unique as u64 * 4,
-                );
+            let cn = u64::from(cand_n);
+            recorder::copy(&ctx, cmd, &b.out_vals, &new_geo, 0, 0, u * 4);
+            if let Some(gm) = new_geo_mom.as_ref() {
+                recorder::copy(&ctx, cmd, &b.out_vals, &gm[0], cn * 4, 0, u * 4);
+                recorder::copy(&ctx, cmd, &b.out_vals, &gm[1], 2 * cn * 4, 0, u * 4);
             }
-            recorder::copy(
-                &ctx,
-                cmd,
-                &b.corners,
-                readback,
-                0,
-                off_corners,
-                u64::from(cand_n) * 4,
-            );
+            recorder::copy(&ctx, cmd, &b.corners, &new_corners, 0, 0, cn * 4);
+            recorder::copy(&ctx, cmd, free_keys, readback, 0, 0, u * 8);
+            recorder::copy(&ctx, cmd, &b.corners, readback, 0, off_corners, cn * 4);
             Ok(())
         })?;
         let bytes = readback
             .mapped()
             .ok_or_else(|| Error::Gpu("topology read-back is not host-visible".into()))?;
         let range = |off: u64, len: u64| &bytes[off as usize..(off + len) as usize];
-        let grid_keys: Vec<u64> = bytemuck::pod_collect_to_vec(range(0, unique as u64 * 8));
-        let plane = |p: u64| -> Vec<f32> {
-            bytemuck::pod_collect_to_vec(range(off_vals + p * unique as u64 * 4, unique as u64 * 4))
-        };
-        let geo = plane(0);
+        let grid_keys: Vec<u64> = bytemuck::pod_collect_to_vec(range(0, u * 8));
         let corners: Vec<[u32; 8]> =
             bytemuck::pod_collect_to_vec(range(off_corners, u64::from(cand_n) * 4));
-        let new_moments = mom_sh.map(|[sh0_m, sh0_v, shs_m, shs_v]| {
-            vec![plane(1), plane(2), sh0_m, sh0_v, shs_m, shs_v]
-        });
+        let max_level = finest;
         let out = Scene {
-            center: scene.center,
-            extent: scene.extent,
-            sh_degree: scene.sh_degree,
-            background: scene.background,
-            supersample: scene.supersample,
-            world: scene.world,
+            center: host.center,
+            extent: host.extent,
+            sh_degree: host.sh_degree,
+            background: host.background,
+            supersample: host.supersample,
+            world: host.world,
             octpath,
             octlevel,
             grid_keys,
-            geo,
+            geo: vec![0.0; unique],
             corners,
-            sh0,
-            shs,
+            sh0: vec![[0.0; 3]; new_n],
+            shs: vec![0.0; new_n * nc],
+        };
+        let scene = SceneGpu {
+            octpath: new_octpath,
+            level: new_level,
+            corners: new_corners,
+            geo: new_geo,
+            sh0: new_sh0,
+            shs: new_shs,
+            voxels: new_n as u32,
+            grid_points: unique as u32,
+            max_level,
+            sh_degree: gpu.sh_degree,
+            shs_per_voxel: gpu.shs_per_voxel,
+            center: gpu.center,
+            extent: gpu.extent,
+            background: gpu.background,
+        };
+        let moments = match (new_geo_mom, new_sh_mom) {
+            (Some([gm, gv]), Some([sm, sv, hm, hv])) => Some([gm, gv, sm, sv, hm, hv]),
+            _ => None,
         };
         let t3 = Instant::now();
         let ms = |a: Instant, b: Instant| (b - a).as_secs_f64() * 1e3;
@@ -588,7 +757,11 @@ impl Topology {
             total_ms: ms(t0, t3),
             gpu_stages,
         };
-        Ok((out, new_moments))
+        Ok(Changed {
+            scene,
+            moments,
+            host: out,
+        })
     }
 }
 

@@ -9,8 +9,8 @@ use super::backward::Gradients;
 use super::config::{AdaptStep, Layout};
 use super::init::Moments;
 use super::trainer::Trainer;
+use crate::adapt::topology::Changed;
 use crate::adapt::AdaptReport;
-use crate::scene::{Scene, SceneGpu};
 use crate::{Error, Result};
 
 impl Trainer {
@@ -27,7 +27,6 @@ impl Trainer {
         }
         let vs = self.stats.read()?;
         let stats_seconds = t0.elapsed().as_secs_f64();
-        self.scene.download_params(&self.ctx, &mut self.host)?;
         let priority: Vec<f32> = self.ctx.download(&self.grads.priority, 0, n)?;
         let keep: Vec<bool> = match step.prune_below {
             Some(t) => vs.max_weight.iter().map(|&w| w >= t).collect(),
@@ -103,11 +102,7 @@ impl Trainer {
             )));
         }
         if kept < n || subdivided > 0 {
-            let state = self.optimizer_state()?;
-            let (scene, state) = self
-                .topology
-                .apply(&self.host, Some(&state), &keep, &split)?;
-            self.install(scene, state.as_deref())?;
+            self.change_layout(&keep, &split)?;
         } else {
             let ctx = self.ctx.clone();
             ctx.submit_and_wait(|cmd| {
@@ -134,21 +129,35 @@ impl Trainer {
         })
     }
 
-    /// Replaces the model (new layout) and everything sized by it.
-    fn install(&mut self, scene: Scene, state: Option<&[Vec<f32>]>) -> Result<()> {
+    /// Prunes the voxels with `keep[i] == false` and subdivides those with `split[i]`
+    /// ([`Topology::apply_device`](crate::adapt::topology::Topology::apply_device)):
+    /// parameters and Adam moments move to the new layout on the device; the
+    /// accumulated priorities restart at zero. [`Trainer::adapt`] chooses the masks.
+    pub fn change_layout(&mut self, keep: &[bool], split: &[bool]) -> Result<()> {
+        let m = &self.mom;
+        let moments = [&m[0].m, &m[0].v, &m[1].m, &m[1].v, &m[2].m, &m[2].v];
+        let changed =
+            self.topology
+                .apply_device(&self.host, &self.scene, Some(moments), keep, split)?;
+        self.install(changed)
+    }
+
+    /// Replaces the model (new layout, built on the device) and everything sized by it.
+    fn install(&mut self, changed: Changed) -> Result<()> {
         let degree = self.scene.sh_degree;
-        // Release the old moments first (the largest per-voxel state after the SH).
+        let Some([gm, gv, sm, sv, hm, hv]) = changed.moments else {
+            return Err(Error::Gpu("topology change returned no moments".into()));
+        };
         self.mom = [
-            Moments::new(&self.ctx, "geo", 0)?,
-            Moments::new(&self.ctx, "sh0", 0)?,
-            Moments::new(&self.ctx, "shs", 0)?,
+            Moments { m: gm, v: gv },
+            Moments { m: sm, v: sv },
+            Moments { m: hm, v: hv },
         ];
-        let mut gpu = SceneGpu::upload(&self.ctx, &scene)?;
-        gpu.sh_degree = degree;
-        self.scene = gpu;
+        self.scene = changed.scene;
+        self.scene.sh_degree = degree;
         self.grads = Gradients::new(&self.ctx, &self.scene)?;
-        self.mom = Self::moments(&self.ctx, &self.scene, state)?;
-        self.host = scene;
+        // Structure only: the parameters live on the device (download_params).
+        self.host = changed.host;
         Ok(())
     }
 }

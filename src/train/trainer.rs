@@ -74,6 +74,9 @@ pub struct Trainer {
     pub(super) ctx: Context,
     pub(super) cfg: TrainConfig,
     pub(super) schedule: Schedule,
+    /// The model's layout on the host (octpaths, levels, grid keys, corners). Its
+    /// parameters are stale: the device holds them, and `download_params` refreshes
+    /// them when a host copy is needed (snapshots, checkpoints).
     pub(super) host: Scene,
     pub(super) scene: SceneGpu,
     pub(super) grads: Gradients,
