@@ -216,9 +216,9 @@ void main() {
                 rho[k] = trilinear(g, qs[k]);
                 lv[k] = STEP_SZ_SCALE * step_sz * explin(rho[k]);
                 vol += lv[k];
-                la[k] = min(MAX_ALPHA, 1.0 - exp(-lv[k]));
+                la[k] = min(MAX_ALPHA, alpha_of_depth(lv[k]));
             }
-            precise float raw_alpha = 1.0 - exp(-vol);
+            precise float raw_alpha = alpha_of_depth(vol);
             float alpha = min(MAX_ALPHA, raw_alpha);
             need = need && alpha >= MIN_ALPHA;
 #ifdef COUNTERS
@@ -274,7 +274,7 @@ void main() {
                 for (int k = N_SAMP - 1; k >= 0; --k) {
                     float t = a + (float(k) + 0.5) * step_sz;
                     float dla = trs[k] * (t - S);
-                    float lraw = 1.0 - exp(-lv[k]);
+                    float lraw = alpha_of_depth(lv[k]);
                     if (lraw <= MAX_ALPHA) d_lv[k] += Tk * dD * dla * exp(-lv[k]);
                     S = la[k] * t + (1.0 - la[k]) * S;
                 }

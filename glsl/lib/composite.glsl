@@ -155,9 +155,9 @@ void main() {
                 precise vec3 q = (t * rd - vmin) * inv_size;
                 float local_vol = STEP_SZ_SCALE * step_sz * explin(trilinear(e.g, q));
                 vol += local_vol;
-                la[k] = min(MAX_ALPHA, 1.0 - exp(-local_vol));
+                la[k] = min(MAX_ALPHA, alpha_of_depth(local_vol));
             }
-            precise float alpha = min(MAX_ALPHA, 1.0 - exp(-vol));
+            precise float alpha = min(MAX_ALPHA, alpha_of_depth(vol));
             if (alpha >= MIN_ALPHA) {
 #ifdef COUNTERS
             c_contrib += 1u;

@@ -67,6 +67,8 @@ pub fn reference_scan(data: &[u32]) -> (Vec<u32>, u32) {
     (out, run)
 }
 
+pub mod backward;
+pub mod forward;
 pub mod host;
 pub mod reference;
 pub mod reference_grad;
