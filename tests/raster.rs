@@ -541,3 +541,33 @@ fn chunking_and_capacity_growth_give_identical_frames() {
     assert_within(&e, "grown renderer");
     finish(&ctx);
 }
+
+/// The two hard limits of the entry encoding are refused up front with one clear error
+/// (README: Numerical limits): pixel rectangles pack each coordinate in 16 bits (at most
+/// 65 535 pixels per render edge) and entry values keep the voxel id in 29 bits.
+#[test]
+fn edge_and_voxel_id_limits_are_clear_errors() {
+    let ctx = context();
+    let mut r = Renderer::new(&ctx).unwrap();
+    let mut rng = Rng(77);
+    let scene = random_scene(&mut rng, 3, 0);
+    let base = camera_outside(&mut rng, &scene, 16, 16);
+    let mut gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+    let err = r
+        .render(&gpu, &base.resized(65536, 1), &RenderOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("65535"), "{err}");
+    // 65 535 is accepted by the edge check (here: 65 535 × 1 renders).
+    let (img, _) = r
+        .render(&gpu, &base.resized(65535, 1), &RenderOptions::default())
+        .unwrap();
+    assert_eq!(img.width, 65535);
+    gpu.voxels = svraster::scene::MAX_VOXELS as u32 + 1;
+    let err = r
+        .render(&gpu, &base, &RenderOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("29-bit"), "{err}");
+    finish(&ctx);
+}
