@@ -3,7 +3,19 @@ use svraster::gpu::Context;
 pub fn run(ctx: &Context, json: bool) -> anyhow::Result<()> {
     let i = ctx.info();
     if json {
-        println!("{}", serde_json::to_string_pretty(i)?);
+        let mut v = serde_json::to_value(i)?;
+        if let (Some(obj), Some(b)) = (v.as_object_mut(), ctx.memory_budget()) {
+            obj.insert(
+                "memory_budget".into(),
+                serde_json::json!({
+                    "heap_bytes": b.heap_bytes,
+                    "budget_bytes": b.budget_bytes,
+                    "usage_bytes": b.usage_bytes,
+                    "available_bytes": b.available_bytes(),
+                }),
+            );
+        }
+        println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
     let mib = |b: u64| b as f64 / (1024.0 * 1024.0);
@@ -49,6 +61,15 @@ pub fn run(ctx: &Context, json: bool) -> anyhow::Result<()> {
         "  device-local heap            {:.0} MiB",
         mib(i.device_local_heap_bytes)
     );
+    match ctx.memory_budget() {
+        Some(b) => println!(
+            "  memory budget (VK_EXT_memory_budget) {:.0} MiB, in use {:.0} MiB: {:.0} MiB available",
+            mib(b.budget_bytes),
+            mib(b.usage_bytes),
+            mib(b.available_bytes())
+        ),
+        None => println!("  memory budget                no VK_EXT_memory_budget: the heap size is used"),
+    }
     println!("features enabled    {}", i.features_enabled.join(", "));
     println!(
         "validation layer    {}",

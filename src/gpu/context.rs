@@ -56,6 +56,7 @@ pub(crate) struct ValidationLog {
 pub(crate) struct Inner {
     _entry: ash::Entry,
     pub instance: ash::Instance,
+    pub physical_device: vk::PhysicalDevice,
     pub device: ash::Device,
     pub queue: vk::Queue,
     pub queue_family: u32,
@@ -73,6 +74,21 @@ pub(crate) struct Inner {
 // SAFETY: the raw ValidationLog pointer is only read through `&` and the log is Sync.
 unsafe impl Send for Inner {}
 unsafe impl Sync for Inner {}
+
+/// A device-local heap's size, budget and usage ([`Context::memory_budget`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryBudget {
+    pub heap_bytes: u64,
+    pub budget_bytes: u64,
+    pub usage_bytes: u64,
+}
+
+impl MemoryBudget {
+    /// What this process may still allocate on the heap.
+    pub fn available_bytes(&self) -> u64 {
+        self.budget_bytes.saturating_sub(self.usage_bytes)
+    }
+}
 
 /// The Vulkan device the engine runs on. Cheap to clone (shared handle).
 #[derive(Clone)]
@@ -459,6 +475,13 @@ impl Context {
             .map(|h| h.size)
             .max()
             .unwrap_or(0);
+        // VK_EXT_memory_budget is a physical-device query: supported is enough.
+        let memory_budget_ext = unsafe { instance.enumerate_device_extension_properties(pdev) }
+            .map(|exts| {
+                exts.iter()
+                    .any(|e| e.extension_name_as_c_str() == Ok(ash::ext::memory_budget::NAME))
+            })
+            .unwrap_or(false);
         let mut features_enabled: Vec<String> = [
             "shaderInt64",
             "bufferDeviceAddress",
@@ -489,6 +512,7 @@ impl Context {
             max_push_constants_size: props.limits.max_push_constants_size,
             timestamp_period_ns: props.limits.timestamp_period,
             device_local_heap_bytes,
+            memory_budget_ext,
             features_enabled,
             float_atomic_add: h.float_atomic_add,
             full_subgroups: h.full_subgroups,
@@ -539,6 +563,7 @@ impl Context {
             inner: Arc::new(Inner {
                 _entry: h.entry,
                 instance,
+                physical_device: pdev,
                 device,
                 queue,
                 queue_family: h.queue_family_index,
@@ -556,6 +581,33 @@ impl Context {
 
     pub fn info(&self) -> &DeviceInfo {
         &self.inner.info
+    }
+
+    /// The largest device-local heap as VK_EXT_memory_budget reports it now: its size,
+    /// the budget the driver gives this process on it and the process's current usage
+    /// (all processes' allocations count against the budget). `None` where the device
+    /// does not offer the extension.
+    pub fn memory_budget(&self) -> Option<MemoryBudget> {
+        if !self.inner.info.memory_budget_ext {
+            return None;
+        }
+        let mut b = vk::PhysicalDeviceMemoryBudgetPropertiesEXT::default();
+        let mut p = vk::PhysicalDeviceMemoryProperties2::default().push_next(&mut b);
+        unsafe {
+            self.inner
+                .instance
+                .get_physical_device_memory_properties2(self.inner.physical_device, &mut p)
+        };
+        let heaps = p.memory_properties.memory_heaps;
+        let n = p.memory_properties.memory_heap_count as usize;
+        (0..n)
+            .filter(|&i| heaps[i].flags.contains(vk::MemoryHeapFlags::DEVICE_LOCAL))
+            .max_by_key(|&i| heaps[i].size)
+            .map(|i| MemoryBudget {
+                heap_bytes: heaps[i].size,
+                budget_bytes: b.heap_budget[i],
+                usage_bytes: b.heap_usage[i],
+            })
     }
     pub fn device(&self) -> &ash::Device {
         &self.inner.device

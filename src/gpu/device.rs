@@ -23,6 +23,8 @@ pub struct DeviceInfo {
     pub max_push_constants_size: u32,
     pub timestamp_period_ns: f32,
     pub device_local_heap_bytes: u64,
+    /// The device offers VK_EXT_memory_budget ([`Context::memory_budget`](super::Context::memory_budget)).
+    pub memory_budget_ext: bool,
     pub features_enabled: Vec<String>,
     pub float_atomic_add: bool,
     pub full_subgroups: bool,

@@ -144,16 +144,20 @@ pub fn bytes_per_voxel(sh_degree: u32) -> u64 {
     layout + params + adam + grid + frame + candidates
 }
 
-/// The voxel budget: `max_voxels` when set, else what fits in half of the device's
-/// memory (the rest is left to the frame's entry lists and images), capped by the
-/// largest per-voxel buffer (higher-order SH) fitting one allocation and by the 29-bit
-/// voxel ids.
+/// The voxel budget: `max_voxels` when set, else what fits in half of the device memory
+/// this process may still allocate (VK_EXT_memory_budget's budget minus usage where the
+/// device offers it, else half the device-local heap; the rest is left to the frame's
+/// entry lists and images), capped by the largest per-voxel buffer (higher-order SH)
+/// fitting one allocation and by the 29-bit voxel ids.
 pub fn voxel_budget(ctx: &Context, cfg: &TrainConfig) -> u64 {
     if cfg.max_voxels > 0 {
         return cfg.max_voxels;
     }
     let info = ctx.info();
-    let mut budget = info.device_local_heap_bytes / 2 / bytes_per_voxel(cfg.sh_degree);
+    let memory = ctx
+        .memory_budget()
+        .map_or(info.device_local_heap_bytes, |b| b.available_bytes());
+    let mut budget = memory / 2 / bytes_per_voxel(cfg.sh_degree);
     let shs = (crate::scene::sh_coeffs(cfg.sh_degree) as u64 - 1) * 12;
     let largest = shs.max(8 * 8); // higher-order SH, or 8 candidate keys per voxel
     if info.max_memory_allocation_size > 0 {
