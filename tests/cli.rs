@@ -1332,3 +1332,97 @@ fn export_ply_and_quantized_checkpoint() {
     assert!(!ok && err.contains("not found"), "{err}");
     assert!(!bad.exists());
 }
+
+/// `bench trade --vary`: one factor at a time around the preset (a `--set` key and
+/// `iters`), Pareto fronts marked in the JSON and the table, the ETA reported, and a
+/// knob the preset does not have refused before anything trains.
+#[test]
+fn bench_trade_varies_knobs_one_at_a_time_and_marks_the_front() {
+    let dir = tmp("trade-vary");
+    let data = dir.path().join("data");
+    svraster::data::demo::write_dataset(
+        &data,
+        &svraster::data::demo::DemoOptions {
+            width: 20,
+            height: 20,
+            train: 6,
+            val: 2,
+            test: 1,
+            seed: 4,
+        },
+    )
+    .unwrap();
+    let out = dir.path().join("trade");
+    let common = [
+        "bench",
+        "trade",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--downscale",
+        "1",
+        "--iters",
+        "60",
+        "--max-voxels",
+        "3000",
+        "--set",
+        "grid_level=3",
+    ];
+    let mut bad = common.to_vec();
+    bad.extend_from_slice(&["--vary", "no_such_knob=1,2"]);
+    let (ok, _, err) = svraster(&bad);
+    assert!(!ok && err.contains("no_such_knob"), "{err}");
+    assert!(
+        !out.join("base").exists(),
+        "nothing trained before the check"
+    );
+
+    let mut args = common.to_vec();
+    args.extend_from_slice(&["--vary", "samples=1,3", "--vary", "iters=20", "--json"]);
+    let (ok, stdout, err) = svraster(&args);
+    assert!(ok, "bench trade --vary failed: {stdout}\n{err}");
+    let doc: serde_json::Value = serde_json::from_str(stdout.trim()).expect("trade JSON");
+    let rows = doc["rows"].as_array().unwrap();
+    let names: Vec<&str> = rows
+        .iter()
+        .map(|r| r["variant"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["base", "samples=1", "samples=3", "iters=20"]);
+    assert_eq!(rows[3]["iters"], 20);
+    assert_eq!(rows[0]["iters"], 60);
+    let cfg: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(out.join("samples=3").join("config.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(cfg["config"]["samples"], 3, "{cfg}");
+    // Each front holds the fastest variant, and the most accurate one.
+    for (front, cost) in [("front_train", "train_s"), ("front_render", "ms_per_frame")] {
+        let fastest = rows
+            .iter()
+            .min_by(|a, b| {
+                a[cost]
+                    .as_f64()
+                    .unwrap()
+                    .total_cmp(&b[cost].as_f64().unwrap())
+            })
+            .unwrap();
+        let best = rows
+            .iter()
+            .max_by(|a, b| {
+                a["psnr"]
+                    .as_f64()
+                    .unwrap()
+                    .total_cmp(&b["psnr"].as_f64().unwrap())
+            })
+            .unwrap();
+        assert_eq!(fastest[front], true, "{front}: {fastest}");
+        assert_eq!(best[front], true, "{front}: {best}");
+    }
+    assert!(err.contains("ETA"), "{err}");
+    let md = std::fs::read_to_string(out.join("trade.md")).unwrap();
+    assert!(
+        md.contains("speed/accuracy trade") && md.contains("| Pareto front |"),
+        "{md}"
+    );
+    assert!(md.contains("**train"), "{md}");
+}

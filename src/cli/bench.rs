@@ -84,9 +84,10 @@ pub enum BenchCmd {
         #[arg(long)]
         json: bool,
     },
-    /// Speed/accuracy trade of the voxel layout (paper Tab. 6): adaptive vs uniform
-    /// layouts trained under one voxel budget, evaluated on a held-out split; writes
-    /// OUT/trade.md, OUT/trade.json and OUT/trade.png.
+    /// Speed/accuracy trade: without --vary, of the voxel layout (paper Tab. 6: adaptive
+    /// vs uniform layouts under one voxel budget); with --vary, of any knobs, one factor at
+    /// a time around the preset. Every variant is trained and evaluated on a held-out
+    /// split; writes OUT/trade.md, OUT/trade.json and OUT/trade.png (Pareto fronts marked).
     Trade {
         /// Blender-format dataset.
         data: std::path::PathBuf,
@@ -111,6 +112,12 @@ pub enum BenchCmd {
         /// Config overrides applied to every variant.
         #[arg(long = "set", value_name = "KEY=VALUE")]
         set: Vec<String>,
+        /// A knob to sweep, one factor at a time around the preset (repeatable): any
+        /// --set key or `iters`, e.g. --vary ss=1,1.5 --vary samples=1,3 --vary
+        /// sh_degree=0,1 --vary layout=uniform,fixed. With --vary, --uniform-levels is
+        /// not used (vary `layout` and `max_level` instead).
+        #[arg(long, value_name = "KEY=V1,V2")]
+        vary: Vec<String>,
         #[arg(long, default_value_t = 0)]
         seed: u64,
         /// Keep a variant that an earlier run of the same comparison (same data, split,
@@ -183,6 +190,7 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             uniform_levels,
             split,
             set,
+            vary,
             seed,
             reuse,
             json,
@@ -198,6 +206,7 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
                 uniform_levels,
                 split,
                 set,
+                vary,
                 seed,
                 reuse,
                 json,
