@@ -27,6 +27,22 @@ fn tmp(name: &str) -> TempDir {
         .unwrap()
 }
 
+/// The demo dataset (square `size`², `[train, val, test]` views) written to `dir`.
+fn write_demo(dir: &std::path::Path, size: u32, views: [usize; 3], seed: u64) {
+    svraster::data::demo::write_dataset(
+        dir,
+        &svraster::data::demo::DemoOptions {
+            width: size,
+            height: size,
+            train: views[0],
+            val: views[1],
+            test: views[2],
+            seed,
+        },
+    )
+    .unwrap();
+}
+
 #[test]
 fn demo_then_render_and_bench() {
     let dir = tmp("demo");
@@ -231,18 +247,7 @@ fn train_interrupt_resume_eval_and_bench() {
     let dir = tmp("train");
     let data = dir.path().join("data");
     // A small dataset (the demo generator, no training).
-    svraster::data::demo::write_dataset(
-        &data,
-        &svraster::data::demo::DemoOptions {
-            width: 24,
-            height: 24,
-            train: 8,
-            val: 3,
-            test: 2,
-            seed: 1,
-        },
-    )
-    .unwrap();
+    write_demo(&data, 24, [8, 3, 2], 1);
     let ds = data.to_str().unwrap();
     let run = dir.path().join("run");
     let rs = run.to_str().unwrap();
@@ -423,18 +428,7 @@ fn train_rejects_bad_input_with_one_clear_error() {
     let (ok, _, err) = svraster(&["train", d, "--out", o]);
     assert!(!ok && err.contains("transforms_*.json"), "{err}");
     assert_eq!(err.trim().lines().count(), 2, "{err}"); // "loading …" + the error
-    svraster::data::demo::write_dataset(
-        &data,
-        &svraster::data::demo::DemoOptions {
-            width: 16,
-            height: 16,
-            train: 3,
-            val: 1,
-            test: 1,
-            seed: 1,
-        },
-    )
-    .unwrap();
+    write_demo(&data, 16, [3, 1, 1], 1);
     // Bad --set key and value, unknown preset.
     let (ok, _, err) = svraster(&["train", d, "--out", o, "--set", "gridlevel=3"]);
     assert!(!ok && err.contains("unknown config key"), "{err}");
@@ -476,18 +470,7 @@ fn train_rejects_bad_input_with_one_clear_error() {
 fn bench_trade_writes_table_json_and_chart() {
     let dir = tmp("trade");
     let data = dir.path().join("data");
-    svraster::data::demo::write_dataset(
-        &data,
-        &svraster::data::demo::DemoOptions {
-            width: 24,
-            height: 24,
-            train: 8,
-            val: 2,
-            test: 1,
-            seed: 3,
-        },
-    )
-    .unwrap();
+    write_demo(&data, 24, [8, 2, 1], 3);
     let out = dir.path().join("trade");
     // The same comparison both times (the second run adds --reuse).
     let trade = |extra: &[&str]| {
@@ -567,7 +550,9 @@ fn bench_trade_writes_table_json_and_chart() {
         .collect();
     assert_eq!(reused.len(), 2, "{err2}");
     assert!(reused[0].starts_with("== adaptive ==") && reused[1].starts_with("== uniform-4 =="));
-    assert!(err2.contains("replacing the previous run") && err2.contains("== uniform-3 =="));
+    assert!(
+        err2.contains("replacing the previous run") && err2.contains("== uniform-3 (2 of 3) ==")
+    );
     let doc2: serde_json::Value = serde_json::from_str(stdout2.trim()).expect("trade JSON");
     let rows2 = doc2["rows"].as_array().unwrap();
     assert_eq!(rows2.len(), 3);
@@ -621,18 +606,7 @@ fn bench_trade_writes_table_json_and_chart() {
 /// A small demo dataset in `dir/name` (no training).
 fn small_data(dir: &std::path::Path, name: &str, seed: u64) -> PathBuf {
     let data = dir.join(name);
-    svraster::data::demo::write_dataset(
-        &data,
-        &svraster::data::demo::DemoOptions {
-            width: 24,
-            height: 24,
-            train: 6,
-            val: 2,
-            test: 1,
-            seed,
-        },
-    )
-    .unwrap();
+    write_demo(&data, 24, [6, 2, 1], seed);
     data
 }
 
@@ -969,18 +943,7 @@ fn colmap_capture_train_eval_with_data_options() {
     use svraster::data::colmap::{self, ColmapCamera, ColmapImage, Reconstruction};
     use svraster::data::lens::CameraModel;
     let demo = tmp("cap-demo");
-    svraster::data::demo::write_dataset(
-        demo.path(),
-        &svraster::data::demo::DemoOptions {
-            width: 24,
-            height: 24,
-            train: 16,
-            val: 1,
-            test: 1,
-            seed: 5,
-        },
-    )
-    .unwrap();
+    write_demo(demo.path(), 24, [16, 1, 1], 5);
     let ds = svraster::data::load_split(demo.path(), "train", 1.0, [0.0; 3]).unwrap();
     let dir = tmp("cap");
     std::fs::create_dir_all(dir.path().join("images_2")).unwrap();
@@ -1340,18 +1303,7 @@ fn export_ply_and_quantized_checkpoint() {
 fn bench_trade_varies_knobs_one_at_a_time_and_marks_the_front() {
     let dir = tmp("trade-vary");
     let data = dir.path().join("data");
-    svraster::data::demo::write_dataset(
-        &data,
-        &svraster::data::demo::DemoOptions {
-            width: 20,
-            height: 20,
-            train: 6,
-            val: 2,
-            test: 1,
-            seed: 4,
-        },
-    )
-    .unwrap();
+    write_demo(&data, 20, [6, 2, 1], 4);
     let out = dir.path().join("trade");
     let common = [
         "bench",

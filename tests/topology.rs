@@ -14,15 +14,15 @@
 
 mod common;
 
+use common::forward::render;
+
 use std::collections::BTreeMap;
 
 use common::reference::trilinear;
 use common::{camera_inside, camera_outside, context, finish, random_scene, Rng};
 use svraster::adapt::topology::{Moments, Topology};
 use svraster::data::Camera;
-use svraster::gpu::Context;
-use svraster::raster::{Image, RenderOptions, Renderer};
-use svraster::scene::SceneGpu;
+use svraster::raster::{Image, Renderer};
 use svraster::scene::{key_coords, octpath_from_ijk, voxel_corner_keys, Scene, MAX_LEVEL};
 
 /// Density (and geo moment) tolerance relative to the largest |value| a grid point's
@@ -478,22 +478,6 @@ fn errors_are_reported() {
 
 // ---- rendering ----------------------------------------------------------------------
 
-fn render(r: &mut Renderer, ctx: &Context, scene: &Scene, cam: &Camera) -> Image {
-    let gpu = SceneGpu::upload(ctx, scene).expect("upload");
-    let (img, stats) = r
-        .render(
-            &gpu,
-            cam,
-            &RenderOptions {
-                samples: 1,
-                supersample: 1.0,
-            },
-        )
-        .expect("render");
-    assert!(stats.complete());
-    img
-}
-
 /// (max, mean) abs difference of rgb and alpha.
 fn image_diff(a: &Image, b: &Image) -> (f64, f64) {
     let mut max: f64 = 0.0;
@@ -621,8 +605,8 @@ fn subdividing_a_linear_field_leaves_the_image_unchanged() {
         assert!(s.geo.iter().all(|&g| g > 1.2));
         let fine = split_all(&mut topo, &s);
         for (ci, cam) in cameras(&mut rng, &s).iter().enumerate() {
-            let a = render(&mut r, &ctx, &s, cam);
-            let b = render(&mut r, &ctx, &fine, cam);
+            let a = render(&mut r, &ctx, &s, cam, 1);
+            let b = render(&mut r, &ctx, &fine, cam, 1);
             let seen = a.alpha.iter().filter(|&&x| x > 0.05).count();
             assert!(
                 seen > 100,
@@ -689,8 +673,8 @@ fn subdividing_a_smooth_field_changes_the_image_little() {
         for (ci, cam) in cameras(&mut rng, &s).iter().enumerate() {
             let inside = usize::from(ci == 3);
             for (k, (x, y)) in [(&s, &fine), (&s0, &fine0)].into_iter().enumerate() {
-                let a = render(&mut r, &ctx, x, cam);
-                let b = render(&mut r, &ctx, y, cam);
+                let a = render(&mut r, &ctx, x, cam, 1);
+                let b = render(&mut r, &ctx, y, cam, 1);
                 let (max, mean) = image_diff(&a, &b);
                 println!(
                     "smooth field seed {seed} camera {ci} ({}), {}: max |Δ| {max:.3e}, mean {mean:.3e}",
@@ -760,8 +744,8 @@ fn pruning_invisible_voxels_leaves_the_image_unchanged() {
         .iter()
         .enumerate()
         {
-            let a = render(&mut r, &ctx, &s, cam);
-            let b = render(&mut r, &ctx, &pruned, cam);
+            let a = render(&mut r, &ctx, &s, cam, 1);
+            let b = render(&mut r, &ctx, &pruned, cam, 1);
             let seen = a.alpha.iter().filter(|&&x| x > 0.05).count();
             seen_total += seen;
             let (max, _) = image_diff(&a, &b);
