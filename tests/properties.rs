@@ -10,10 +10,10 @@
 
 mod common;
 
-use common::backward::{ambiguous, compare_within, gpu_grads, random_weights, BOUND};
+use common::backward::{compare_within, gpu_grads, random_weights, BOUND};
 use common::forward::{assert_within, compare, pixel, render, Errors};
 use common::reference;
-use common::reference_grad::{grads, LossSpec};
+use common::reference_grad::{evaluate, grads, pixel_rays, LossSpec, Params, PixelWeights};
 use common::{camera_inside, camera_outside, context, finish, random_scene, Rng};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
@@ -32,6 +32,15 @@ enum View {
     AxisAligned(usize, bool),
     /// Outside, with its x and y on planes of the finest voxel grid.
     OnBoundaryPlanes,
+}
+
+fn view_index(v: View) -> usize {
+    match v {
+        View::Outside => 0,
+        View::Inside => 1,
+        View::AxisAligned(..) => 2,
+        View::OnBoundaryPlanes => 3,
+    }
 }
 
 /// How dense the voxels are.
@@ -158,34 +167,64 @@ fn grazes_a_dense_voxel(scene: &Scene, cam: &Camera, px: u32, py: u32) -> bool {
         })
 }
 
-/// Whether a voxel some pixel's ray crosses has α within 5 % of the skip threshold
-/// (1e-5): at that size f32 forms 1 − exp(−σ) with ~1 % error (cancellation), so the
-/// GPU may keep a voxel the reference skips or the other way round, and in a scene
-/// whose every α is that small such a voxel's T·α·∂L/∂c is as large as any gradient
-/// (tests/train_grad.rs checks the composited ones only).
-fn near_the_skip_threshold(scene: &Scene, cam: &Camera, k: u32) -> bool {
-    (0..cam.height).any(|py| {
-        (0..cam.width).any(|px| {
+/// Pixels where f32 and f64 may legitimately composite different entries, so their loss
+/// weights are set to zero in the gradient comparison (the other pixels' gradients do
+/// not depend on them): a crossing whose α is within 1e-3 (relative) of the skip
+/// threshold 1e-5 — f32 forms α with ~1e-6 relative error (alpha_of_depth) — or within
+/// 5 % of the clamp at 0.99999 in optical depth (there f32 resolves 1 − α only to ~1 %,
+/// and the clamp switches the gradient through α off), or a
+/// transmittance after a contributor within 1e-3 of the early-stop threshold 1e-4 (the
+/// stop is a discontinuity: ∂L/∂α of the entries before it jumps).
+fn undecidable_pixels(scene: &Scene, cam: &Camera, k: u32) -> Vec<bool> {
+    let rays = pixel_rays(scene, cam);
+    let np = rays.len();
+    let ev = evaluate(
+        scene,
+        &Params::of(scene),
+        &rays,
+        k as usize,
+        &vec![PixelWeights::default(); np],
+        &LossSpec::default(),
+        None,
+    );
+    let near = |x: f64, threshold: f64| (x / threshold - 1.0).abs() < 1e-3;
+    (0..np)
+        .map(|p| {
+            let (px, py) = (p as u32 % cam.width, p as u32 / cam.width);
+            let stop = ev.contributors[p]
+                .iter()
+                .any(|c| near(c.t * (1.0 - c.alpha), reference::EARLY_STOP_T));
             let (o, d, norm) = reference::pixel_ray(cam, f64::from(px) + 0.5, f64::from(py) + 0.5);
-            reference::ray_hits(scene, o, d, cam.near * norm)
+            let skip = reference::ray_hits(scene, o, d, cam.near * norm)
                 .iter()
                 .any(|&(a, b, i)| {
                     let g: [f64; 8] =
                         std::array::from_fn(|c| f64::from(scene.geo[scene.corners[i][c] as usize]));
-                    let (alpha, _, _) = reference::alpha_of(
-                        &g,
-                        scene.voxel_min(i),
-                        scene.voxel_size(i),
-                        o,
-                        d,
-                        a,
-                        b,
-                        k as usize,
-                    );
-                    (alpha / reference::MIN_ALPHA - 1.0).abs() < 0.05
-                })
+                    let (vmin, size) = (scene.voxel_min(i), scene.voxel_size(i));
+                    let (alpha, _, _) = reference::alpha_of(&g, vmin, size, o, d, a, b, k as usize);
+                    // The optical depth of the segment and of each sample: the clamp at
+                    // α = 0.99999 (σ = ln 1e5) zeroes the gradient through α, and f32
+                    // resolves 1 − α there to ~1 %.
+                    let step = (b - a) / f64::from(k);
+                    let lv: Vec<f64> = (0..k)
+                        .map(|s| {
+                            let t = a + (f64::from(s) + 0.5) * step;
+                            let q: [f64; 3] =
+                                std::array::from_fn(|ax| (o[ax] + t * d[ax] - vmin[ax]) / size);
+                            reference::STEP_SZ_SCALE
+                                * step
+                                * reference::explin(reference::trilinear(&g, q))
+                        })
+                        .collect();
+                    let vol: f64 = lv.iter().sum();
+                    let clamp = (1.0 - reference::MAX_ALPHA).ln().abs();
+                    near(alpha, reference::MIN_ALPHA)
+                        || (vol - clamp).abs() < 0.05
+                        || lv.iter().any(|x| (x - clamp).abs() < 0.05)
+                });
+            stop || skip
         })
-    })
+        .collect()
 }
 
 fn runner(cases: u32) -> TestRunner {
@@ -223,12 +262,7 @@ fn forward_matches_the_reference_on_drawn_scenes() {
     let (pixels, grazing) = (Cell::new(0usize), Cell::new(0usize));
     let result = runner(48).run(&cases(40, 32), |c| {
         let (scene, cam) = build(&c);
-        views.borrow_mut()[match c.view {
-            View::Outside => 0,
-            View::Inside => 1,
-            View::AxisAligned(..) => 2,
-            View::OnBoundaryPlanes => 3,
-        }] += 1;
+        views.borrow_mut()[view_index(c.view)] += 1;
         checked(|| {
             let what = format!("{c:?} ({} voxels)", scene.num_voxels());
             let img = render(&mut r.borrow_mut(), &ctx, &scene, &cam, c.samples);
@@ -268,29 +302,42 @@ fn forward_matches_the_reference_on_drawn_scenes() {
 #[test]
 fn gradients_match_the_reference_on_drawn_scenes() {
     let ctx = context();
-    let drawn = Cell::new(0usize);
-    let ambiguous_cases = Cell::new(0usize);
+    // Cases compared per density kind [mixed, empty, opaque] and per view kind.
+    let kinds = RefCell::new(([0usize; 3], [0usize; 4]));
+    let (pixels, excluded) = (Cell::new(0usize), Cell::new(0usize));
+    let grazing_cases = Cell::new(0usize);
     let result = runner(32).run(&cases(24, 20), |c| {
         let (scene, cam) = build(&c);
-        drawn.set(drawn.get() + 1);
-        let grazing = (0..cam.height)
-            .any(|py| (0..cam.width).any(|px| grazes_a_dense_voxel(&scene, &cam, px, py)));
-        if grazing
-            || near_the_skip_threshold(&scene, &cam, c.samples)
-            || ambiguous(&scene, &cam, c.samples)
+        // A ray grazing a dense voxel anywhere: the case is not compared. (Zeroing only
+        // those pixels' weights leaves discrepancies of up to 0.1 relative in cases with
+        // the eye on boundary planes and clamped-opaque voxels — under investigation,
+        // see the README's Numerical limits.)
+        if (0..cam.height)
+            .any(|py| (0..cam.width).any(|px| grazes_a_dense_voxel(&scene, &cam, px, py)))
         {
-            // A contributor within rounding of the early-stop or skip threshold: f32 and
-            // f64 may legitimately composite different entries (tests/train_grad.rs).
-            ambiguous_cases.set(ambiguous_cases.get() + 1);
+            grazing_cases.set(grazing_cases.get() + 1);
             return Ok(());
         }
         let mut rng = Rng(c.seed ^ 0x9e37_79b9_7f4a_7c15);
         let np = (cam.width * cam.height) as usize;
-        let pix = random_weights(&mut rng, np, [true; 5]);
+        let mut pix = random_weights(&mut rng, np, [true; 5]);
+        let undecidable = undecidable_pixels(&scene, &cam, c.samples);
+        for (w, &u) in pix.iter_mut().zip(&undecidable) {
+            if u {
+                *w = Default::default();
+            }
+        }
+        pixels.set(pixels.get() + np);
+        excluded.set(excluded.get() + undecidable.iter().filter(|&&u| u).count());
         let spec = LossSpec {
             lambda_dist: rng.range(0.1, 2.0),
             lambda_r: rng.range(0.1, 2.0),
         };
+        {
+            let mut k = kinds.borrow_mut();
+            k.0[c.densities as usize] += 1;
+            k.1[view_index(c.view)] += 1;
+        }
         checked(|| {
             let reference = grads(&scene, &cam, c.samples as usize, &pix, &spec);
             for fa in [true, false] {
@@ -309,11 +356,24 @@ fn gradients_match_the_reference_on_drawn_scenes() {
     if let Err(e) = result {
         panic!("{e}");
     }
-    let (drawn, ambiguous_cases) = (drawn.get(), ambiguous_cases.get());
-    println!("{drawn} cases drawn, {ambiguous_cases} at a threshold (not compared)");
+    let (densities, views) = kinds.into_inner();
+    let (pixels, excluded) = (pixels.get(), excluded.get());
+    let grazing_cases = grazing_cases.get();
+    println!(
+        "compared: densities {densities:?}, views {views:?}; {excluded} of {pixels} pixels \
+         undecidable (weights zeroed); {grazing_cases} cases with a grazing ray not compared"
+    );
     assert!(
-        ambiguous_cases * 4 < drawn,
-        "too many cases at a threshold: {ambiguous_cases} of {drawn}"
+        grazing_cases * 4 < 32,
+        "{grazing_cases} of 32 cases graze a dense voxel"
+    );
+    assert!(
+        densities.iter().chain(&views).all(|&n| n > 0),
+        "every kind compared: {densities:?} {views:?}"
+    );
+    assert!(
+        excluded * 10 < pixels,
+        "{excluded} of {pixels} pixels undecidable"
     );
     finish(&ctx);
 }

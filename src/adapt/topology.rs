@@ -368,6 +368,11 @@ impl Topology {
         let g = host.num_grid_points();
         check_input(host, None, keep, split)?;
         let nc = host.shs_per_voxel() * 3;
+        if (n as u64) * (nc.max(3) as u64) > u64::from(u32::MAX) {
+            return Err(Error::Capacity(format!(
+                "{n} voxels with {nc} SH values each exceed the SH copy's u32 index"
+            )));
+        }
         if gpu.voxels as usize != n
             || gpu.grid_points as usize != g
             || gpu.shs_per_voxel as usize * 3 != nc
@@ -422,9 +427,12 @@ impl Topology {
             .ok_or_else(|| {
                 Error::Capacity(format!(
                     "{new_n} voxels after the change are too many for the grid-point dedup \
-                     (at most {} {} moments)",
+                     and the SH copy (at most {} {} moments, and {} at {} SH values per \
+                     voxel)",
                     u32::MAX / 8 / planes,
-                    if moments.is_some() { "with" } else { "without" }
+                    if moments.is_some() { "with" } else { "without" },
+                    u32::MAX as usize / nc.max(3),
+                    nc.max(3)
                 ))
             })?;
         let mut octpath = Vec::with_capacity(new_n);

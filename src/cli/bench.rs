@@ -411,7 +411,8 @@ fn bench_train(
     let mut t = Trainer::new(ctx, cfg.clone(), &train, None)?;
     t.enable_timing()?;
     let mut groups: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
-    // Every timestamped part (kernel or kernel group), in recording order.
+    // Every timestamped part (kernel or kernel group); the text output lists them in
+    // recording order, the JSON map by name.
     let mut parts: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut part_order: Vec<String> = Vec::new();
     let mut total = Vec::new();

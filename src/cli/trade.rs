@@ -137,6 +137,22 @@ fn variants(a: &TradeArgs) -> anyhow::Result<Vec<Variant>> {
             });
         }
     }
+    // One directory per variant: names must be distinct and usable as a path component.
+    let mut seen = std::collections::HashSet::new();
+    for x in &v {
+        if x.name.contains(['/', '\\']) || x.name.starts_with('.') {
+            bail!("--vary: `{}` cannot name a run directory", x.name);
+        }
+        if !seen.insert(x.name.clone()) {
+            bail!("--vary: `{}` is listed twice", x.name);
+        }
+        if x.extra
+            .iter()
+            .any(|kv| kv.replace(' ', "") == "max_voxels=0")
+        {
+            bail!("--vary max_voxels=0: every variant trains under an explicit budget");
+        }
+    }
     Ok(v)
 }
 
@@ -195,8 +211,9 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
         });
         let row_file = run.join("trade_row.json");
         if a.reuse {
-            if let Some(row) = finished_row(&row_file, &key) {
+            if let Some(mut row) = finished_row(&row_file, &key) {
                 eprintln!("== {name} == reusing the finished run in {}", run.display());
+                row.iters = iters; // rows saved before the field existed read 0
                 rows.push(row);
                 doc = write_outputs(ctx, a, &mut rows)?;
                 continue;

@@ -280,21 +280,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             cfg.iters
         );
     }
-    // Where the voxel budget comes from (train::init::voxel_budget).
-    let budget_source = if cfg.max_voxels > 0 {
-        "--max-voxels".to_string()
-    } else {
-        match ctx.memory_budget() {
-            Some(b) => format!(
-                "half the {:.0} MiB the device's memory budget leaves",
-                b.available_bytes() as f64 / 1048576.0
-            ),
-            None => format!(
-                "half the {:.0} MiB device-local heap",
-                ctx.info().device_local_heap_bytes as f64 / 1048576.0
-            ),
-        }
-    };
+    let budget_source = trainer.budget_source().to_string();
     eprintln!(
         "training {} voxels (level-{} grid, voxels no camera sees removed; layout {}, \
          budget {} voxels: {budget_source}) on {} views of {}{}×{} for {} iterations \

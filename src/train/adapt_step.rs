@@ -134,6 +134,9 @@ impl Trainer {
     /// parameters and Adam moments move to the new layout on the device; the
     /// accumulated priorities restart at zero. [`Trainer::adapt`] chooses the masks.
     pub fn change_layout(&mut self, keep: &[bool], split: &[bool]) -> Result<()> {
+        // Rebuilt for the new layout anyway: freed first, they do not add to the peak
+        // while the old and new parameters and moments coexist.
+        self.grads = Gradients::empty(&self.ctx)?;
         let m = &self.mom;
         let moments = [&m[0].m, &m[0].v, &m[1].m, &m[1].v, &m[2].m, &m[2].v];
         let changed =

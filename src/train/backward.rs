@@ -67,6 +67,21 @@ impl Gradients {
         })
     }
 
+    /// Gradient buffers for no scene (4 bytes each): what a trainer holds while a layout
+    /// change builds the new scene, so the old gradients do not add to its peak memory.
+    pub fn empty(ctx: &Context) -> Result<Gradients> {
+        let mk = |name: &str| ctx.zeroed_buffer(name, 4);
+        Ok(Gradients {
+            geo: mk("grad.geo")?,
+            sh0: mk("grad.sh0")?,
+            shs: mk("grad.shs")?,
+            priority: mk("grad.priority")?,
+            voxels: 0,
+            grid_points: 0,
+            shs_per_voxel: 0,
+        })
+    }
+
     /// Records zeroing the accumulated priority.
     pub fn record_clear_priority(&self, ctx: &Context, cmd: vk::CommandBuffer) {
         recorder::zero(ctx, cmd, &self.priority);

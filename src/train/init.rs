@@ -14,7 +14,7 @@ use crate::adapt::stats::StatsPass;
 use crate::adapt::topology::Topology;
 use crate::adapt::{shells, visible_only};
 use crate::data::Dataset;
-use crate::gpu::{Buffer, Context};
+use crate::gpu::{Buffer, Context, DeviceInfo, MemoryBudget};
 use crate::raster::Renderer;
 use crate::scene::{ijk_from_octpath, Scene, SceneGpu};
 use crate::{Error, Result};
@@ -131,8 +131,10 @@ pub(super) fn check_grid_fits(ctx: &Context, cfg: &TrainConfig) -> Result<()> {
 
 /// Device bytes one voxel costs while training at SH degree `sh_degree`: parameters,
 /// gradients and Adam moments (sh0 + shs), ~2 grid points (key, density, gradient,
-/// moments), the renderer's per-voxel frame data, the adaptive statistics, and the
-/// transient candidate corners of a layout change (8 per voxel, sorted with scratch).
+/// moments), the renderer's per-voxel frame data, the adaptive statistics, and what a
+/// layout change holds at once: the candidate corners (8 per voxel, sorted with
+/// scratch) and the new SH with its moments beside the old ones (the gradients are
+/// freed first, so that is two SH-sized arrays more, and the new structure).
 pub fn bytes_per_voxel(sh_degree: u32) -> u64 {
     let sh = 3 * crate::scene::sh_coeffs(sh_degree) as u64 * 4; // sh0 + shs, bytes
     let layout = 8 + 4 + 32; // octpath, level, corners
@@ -141,22 +143,31 @@ pub fn bytes_per_voxel(sh_degree: u32) -> u64 {
     let grid = 2 * (8 + 4 + 4 + 8);
     let frame = 92 + 8;
     let candidates = 8 * (8 * 2 + 4 * 2 + 12 + 4 + 8);
-    layout + params + adam + grid + frame + candidates
+    let change = sh * 2 + layout;
+    layout + params + adam + grid + frame + candidates + change
 }
 
 /// The voxel budget: `max_voxels` when set, else what fits in half of the device memory
 /// this process may still allocate (VK_EXT_memory_budget's budget minus usage where the
 /// device offers it, else half the device-local heap; the rest is left to the frame's
 /// entry lists and images), capped by the largest per-voxel buffer (higher-order SH)
-/// fitting one allocation and by the 29-bit voxel ids.
+/// fitting one allocation and by the 29-bit voxel ids. Reads the device's budget now;
+/// [`voxel_budget_with`] is the same for a given reading.
 pub fn voxel_budget(ctx: &Context, cfg: &TrainConfig) -> u64 {
+    voxel_budget_with(ctx.info(), ctx.memory_budget(), cfg)
+}
+
+/// [`voxel_budget`] for the device `info` and a memory budget reading (`None`: the
+/// device has no VK_EXT_memory_budget).
+pub fn voxel_budget_with(
+    info: &DeviceInfo,
+    memory: Option<MemoryBudget>,
+    cfg: &TrainConfig,
+) -> u64 {
     if cfg.max_voxels > 0 {
         return cfg.max_voxels;
     }
-    let info = ctx.info();
-    let memory = ctx
-        .memory_budget()
-        .map_or(info.device_local_heap_bytes, |b| b.available_bytes());
+    let memory = memory.map_or(info.device_local_heap_bytes, |b| b.available_bytes());
     let mut budget = memory / 2 / bytes_per_voxel(cfg.sh_degree);
     let shs = (crate::scene::sh_coeffs(cfg.sh_degree) as u64 - 1) * 12;
     let largest = shs.max(8 * 8); // higher-order SH, or 8 candidate keys per voxel
@@ -164,6 +175,29 @@ pub fn voxel_budget(ctx: &Context, cfg: &TrainConfig) -> u64 {
         budget = budget.min(info.max_memory_allocation_size / largest);
     }
     budget.min(crate::scene::MAX_VOXELS as u64)
+}
+
+/// Where a voxel budget comes from, in words (the train log).
+pub fn voxel_budget_source(
+    info: &DeviceInfo,
+    memory: Option<MemoryBudget>,
+    cfg: &TrainConfig,
+) -> String {
+    let mib = |b: u64| b as f64 / 1048576.0;
+    if cfg.max_voxels > 0 {
+        "max_voxels".into()
+    } else {
+        match memory {
+            Some(b) => format!(
+                "half the {:.0} MiB the device's memory budget left when the run started",
+                mib(b.available_bytes())
+            ),
+            None => format!(
+                "half the {:.0} MiB device-local heap",
+                mib(info.device_local_heap_bytes)
+            ),
+        }
+    }
 }
 
 impl Trainer {
@@ -181,6 +215,9 @@ impl Trainer {
                 train.split
             )));
         }
+        // The device's memory budget before this run allocates anything (the initial
+        // layout's renderer and topology buffers would otherwise count against it).
+        let memory = ctx.memory_budget();
         let mut renderer = Renderer::new(ctx)?;
         let mut stats = StatsPass::new(ctx)?;
         let mut topology = Topology::new(ctx)?;
@@ -190,7 +227,8 @@ impl Trainer {
             None => initial_layout(ctx, &cfg, &cams, &mut renderer, &mut stats, &mut topology)?,
         };
         host.validate()?;
-        let budget = voxel_budget(ctx, &cfg);
+        let budget = voxel_budget_with(ctx.info(), memory, &cfg);
+        let budget_source = voxel_budget_source(ctx.info(), memory, &cfg);
         if cfg.layout != Layout::Fixed && host.num_voxels() as u64 > budget {
             return Err(Error::Invalid(format!(
                 "the voxel budget ({budget}) is below the {} voxels the run starts with \
@@ -233,6 +271,7 @@ impl Trainer {
             stats,
             topology,
             budget,
+            budget_source,
             budget_logged: false,
         })
     }

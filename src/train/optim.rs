@@ -145,6 +145,11 @@ impl Adam {
             [param, grad, m, v].iter().all(|a| a % 16 == 0),
             "Adam buffers must be 16-byte aligned"
         );
+        // The kernel indexes 4·invocation in u32.
+        assert!(
+            count <= u32::MAX - 1024,
+            "Adam: {count} elements exceed the u32 index"
+        );
         let push = AdamPush::new(param, grad, m, v, self.flags.address(), count, step, cfg);
         // Four elements per invocation (glsl/train/adam.comp).
         self.kernel.dispatch_1d(cmd, &push, count.div_ceil(4));

@@ -30,7 +30,10 @@ use crate::raster::{RenderOptions, Renderer};
 use crate::scene::{Scene, SceneGpu};
 use crate::{Error, Result};
 
-pub use super::init::{bytes_per_voxel, root_extent, uniform_grid, voxel_budget};
+pub use super::init::{
+    bytes_per_voxel, root_extent, uniform_grid, voxel_budget, voxel_budget_source,
+    voxel_budget_with,
+};
 pub use crate::adapt::{visible_only, AdaptReport};
 
 /// Loss values of one iteration (read back only on logged iterations).
@@ -98,6 +101,8 @@ pub struct Trainer {
     pub(super) stats: StatsPass,
     pub(super) topology: Topology,
     pub(super) budget: u64,
+    /// Where `budget` comes from, in words.
+    pub(super) budget_source: String,
     /// Whether the budget stopped a subdivision already (logged once).
     pub(super) budget_logged: bool,
 }
@@ -399,6 +404,12 @@ impl Trainer {
     /// The voxel budget in force (see [`voxel_budget`]).
     pub fn budget(&self) -> u64 {
         self.budget
+    }
+
+    /// Where [`Trainer::budget`] comes from, in words (`max_voxels`, or the device
+    /// memory it was derived from when the run started).
+    pub fn budget_source(&self) -> &str {
+        &self.budget_source
     }
 
     pub fn grid_points(&self) -> u32 {
