@@ -42,11 +42,23 @@ impl Point {
 pub struct Series {
     pub name: String,
     pub points: Vec<Point>,
+    /// Join the points (sorted by x) with a line; false: markers only (unrelated
+    /// points, e.g. the variants of a comparison).
+    pub line: bool,
 }
 
 impl Series {
+    /// Markers only, no line between the points.
+    pub fn scatter(name: impl Into<String>, points: Vec<Point>) -> Self {
+        Self {
+            line: false,
+            ..Self::new(name, points)
+        }
+    }
+
     pub fn new(name: impl Into<String>, points: Vec<Point>) -> Self {
         Self {
+            line: true,
             name: name.into(),
             points,
         }
@@ -265,13 +277,24 @@ where
                 let color = series_color(i);
                 let mut p: Vec<&Point> = s.points.iter().filter(|p| ok(p)).collect();
                 p.sort_by(|a, b| a.x.total_cmp(&b.x));
-                let line =
-                    LineSeries::new(p.iter().map(|p| (p.x, p.y)), Color::stroke_width(&color, 2));
+                let line = LineSeries::new(
+                    p.iter().map(|p| (p.x, p.y)).filter(|_| s.line),
+                    Color::stroke_width(&color, 2),
+                );
+                let joined = s.line;
                 ch.draw_series(line)
                     .map_err(draw_err)?
                     .label(s.name.as_str())
                     .legend(move |(x, y)| {
-                        PathElement::new(vec![(x, y), (x + 18, y)], Color::stroke_width(&color, 2))
+                        if joined {
+                            PathElement::new(
+                                vec![(x, y), (x + 18, y)],
+                                Color::stroke_width(&color, 2),
+                            )
+                            .into_dyn()
+                        } else {
+                            Circle::new((x + 9, y), 4, color.filled()).into_dyn()
+                        }
                     });
                 if c.markers {
                     ch.draw_series(p.iter().map(|p| {

@@ -451,15 +451,6 @@ fn table(ctx: &Context, a: &TradeArgs, rows: &[TradeRow]) -> String {
 fn charts(rows: &[TradeRow], split: &str) -> Vec<Chart> {
     let series = |x: &dyn Fn(&TradeRow) -> f64, front: &dyn Fn(&TradeRow) -> bool| -> Vec<Series> {
         let mut out: Vec<Series> = Vec::new();
-        let mut f: Vec<Point> = rows
-            .iter()
-            .filter(|r| front(r))
-            .map(|r| Point::new(x(r), r.psnr))
-            .collect();
-        f.sort_by(|p, q| p.x.total_cmp(&q.x));
-        if f.len() > 1 {
-            out.push(Series::new("Pareto front", f));
-        }
         for layout in ["adaptive", "uniform", "fixed"] {
             let points: Vec<Point> = rows
                 .iter()
@@ -467,8 +458,17 @@ fn charts(rows: &[TradeRow], split: &str) -> Vec<Chart> {
                 .map(|r| Point::labeled(x(r), r.psnr, r.variant.clone()))
                 .collect();
             if !points.is_empty() {
-                out.push(Series::new(layout, points));
+                out.push(Series::scatter(layout, points));
             }
+        }
+        // Last, so the layouts keep their colours from chart to chart.
+        let f: Vec<Point> = rows
+            .iter()
+            .filter(|r| front(r))
+            .map(|r| Point::new(x(r), r.psnr))
+            .collect();
+        if f.len() > 1 {
+            out.push(Series::new("Pareto front", f));
         }
         out
     };
