@@ -10,10 +10,10 @@
 
 mod common;
 
-use common::backward::{compare_within, gpu_grads, random_weights, BOUND};
+use common::backward::{compare_within, forward_eval, gpu_grads, random_weights, BOUND};
 use common::forward::{assert_within, compare, pixel, render, Errors};
 use common::reference;
-use common::reference_grad::{evaluate, grads, pixel_rays, LossSpec, Params, PixelWeights};
+use common::reference_grad::{grads, LossSpec};
 use common::{camera_inside, camera_outside, context, finish, random_scene, Rng};
 use proptest::prelude::*;
 use proptest::test_runner::{Config, RngAlgorithm, TestCaseError, TestRng, TestRunner};
@@ -176,17 +176,8 @@ fn grazes_a_dense_voxel(scene: &Scene, cam: &Camera, px: u32, py: u32) -> bool {
 /// transmittance after a contributor within 1e-3 of the early-stop threshold 1e-4 (the
 /// stop is a discontinuity: ∂L/∂α of the entries before it jumps).
 fn undecidable_pixels(scene: &Scene, cam: &Camera, k: u32) -> Vec<bool> {
-    let rays = pixel_rays(scene, cam);
-    let np = rays.len();
-    let ev = evaluate(
-        scene,
-        &Params::of(scene),
-        &rays,
-        k as usize,
-        &vec![PixelWeights::default(); np],
-        &LossSpec::default(),
-        None,
-    );
+    let ev = forward_eval(scene, cam, k);
+    let np = ev.contributors.len();
     let near = |x: f64, threshold: f64| (x / threshold - 1.0).abs() < 1e-3;
     (0..np)
         .map(|p| {

@@ -2,7 +2,7 @@
 //! (tests/common/reference_grad.rs), shared by tests/train_grad.rs and
 //! tests/properties.rs.
 
-use super::reference_grad::{evaluate, pixel_rays, LossSpec, Params, PixelWeights, RefGrads};
+use super::reference_grad::{evaluate, pixel_rays, Eval, LossSpec, Params, PixelWeights, RefGrads};
 use super::Rng;
 use svraster::data::Camera;
 use svraster::gpu::Context;
@@ -142,15 +142,12 @@ pub fn random_weights(rng: &mut Rng, n: usize, on: [bool; 5]) -> Vec<PixelWeight
         .collect()
 }
 
-/// Whether f32 and f64 may legitimately disagree about which entries a pixel
-/// composites: the transmittance after an entry within 0.1 % of the early-stop
-/// threshold, or a contributor's alpha within 1 % of the skip threshold. Early
-/// termination is a discontinuity whose effect on ∂L/∂α of the entries before it is
-/// O(1) (∂(T·α_next)/∂α = −α_next however small T is), so such cases are redrawn.
-pub fn ambiguous(scene: &Scene, cam: &Camera, k: u32) -> bool {
+/// The reference forward of every pixel of `cam` with K = `k` (no loss weights): which
+/// entries each pixel composites, with their transmittance and alpha.
+pub fn forward_eval(scene: &Scene, cam: &Camera, k: u32) -> Eval {
     let rays = pixel_rays(scene, cam);
     let np = rays.len();
-    let ev = evaluate(
+    evaluate(
         scene,
         &Params::of(scene),
         &rays,
@@ -158,7 +155,16 @@ pub fn ambiguous(scene: &Scene, cam: &Camera, k: u32) -> bool {
         &vec![PixelWeights::default(); np],
         &LossSpec::default(),
         None,
-    );
+    )
+}
+
+/// Whether f32 and f64 may legitimately disagree about which entries a pixel
+/// composites: the transmittance after an entry within 0.1 % of the early-stop
+/// threshold, or a contributor's alpha within 1 % of the skip threshold. Early
+/// termination is a discontinuity whose effect on ∂L/∂α of the entries before it is
+/// O(1) (∂(T·α_next)/∂α = −α_next however small T is), so such cases are redrawn.
+pub fn ambiguous(scene: &Scene, cam: &Camera, k: u32) -> bool {
+    let ev = forward_eval(scene, cam, k);
     ev.contributors.iter().flatten().any(|c| {
         let after = c.t * (1.0 - c.alpha);
         (after / 1e-4 - 1.0).abs() < 1e-3 || (c.alpha / 1e-5 - 1.0).abs() < 1e-2

@@ -24,7 +24,7 @@
 //!    `x'<<2b | y'<<b | z'` with `c' = c >> (16−L)`, `b = L + 1` has the same order in
 //!    3·(L+1) bits (51 bits at L = 16; 21 instead of 51 for a level-6 scene, 3 digit
 //!    passes instead of 7). The sort is stable, so a run lists its candidates by index.
-//! 4. **GPU dedup** (`dedup_heads.comp` → [`PrefixScan`] → `dedup_merge.comp`): run
+//! 4. **GPU dedup** (`dedup_heads.comp` → [`PrefixScan`](crate::scan::PrefixScan) → `dedup_merge.comp`): run
 //!    heads, their exclusive scan (the unique count is the scan total), then thread per
 //!    sorted candidate `uid = scan[i] + head[i] − 1`; every thread writes its voxel
 //!    corner `corners[candidate] = uid`, the head of a run writes the unique full key
@@ -48,71 +48,19 @@
 
 use std::time::Instant;
 
-use bytemuck::{Pod, Zeroable};
-
 use crate::error::{Error, Result};
 use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Memory, Timestamps};
-use crate::push_constants;
-use crate::scan::{PrefixScan, SCAN_TILE};
+use crate::scan::SCAN_TILE;
 use crate::scene::{Scene, SceneGpu, MAX_LEVEL, MAX_VOXELS};
 use crate::sort::{Count, RadixSort, SortBuffers, Sorted};
+
+mod gpu;
+use gpu::*;
 
 /// Adam moments aligned with a scene's parameters: [geo m, geo v, sh0 m, sh0 v, shs m,
 /// shs v], each laid out exactly like the parameter it belongs to (geo per grid point,
 /// `sh0 [N][3]`, `shs [N][coeffs][3]`).
 pub type Moments = Vec<Vec<f32>>;
-
-/// Bit of the dedup flags: more than 8 candidates share a grid point.
-const FLAG_LONG_RUN: u32 = 1;
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct CandidatesPush {
-    path: u64,
-    info: u64,
-    src: u64,
-    old_corners: u64,
-    old_geo: u64,
-    old_m: u64,
-    old_v: u64,
-    keys: u64,
-    vals: u64,
-    cand: u64,
-    voxels: u32,
-    shift: u32,
-    bits: u32,
-    planes: u32,
-}
-push_constants!(CandidatesPush, kernels::ADAPT_TOPOLOGY_CANDIDATES);
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct HeadsPush {
-    keys: u64,
-    heads: u64,
-    flags: u64,
-    count: u32,
-    pad: u32,
-}
-push_constants!(HeadsPush, kernels::ADAPT_DEDUP_HEADS);
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct MergePush {
-    keys: u64,
-    vals: u64,
-    heads: u64,
-    scan: u64,
-    cand: u64,
-    corners: u64,
-    out_keys: u64,
-    out_vals: u64,
-    count: u32,
-    shift: u32,
-    bits: u32,
-    planes: u32,
-}
-push_constants!(MergePush, kernels::ADAPT_DEDUP_MERGE);
 
 /// Sizes and host wall-clock times of the last [`Topology::apply`].
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -137,71 +85,6 @@ pub struct TopologyStats {
     pub gpu_stages: Vec<(String, f64)>,
 }
 
-/// Per-candidate device buffers with the sort and scan of the same capacity.
-struct CandidateBuffers {
-    capacity: u32,
-    sort: RadixSort,
-    scan: PrefixScan,
-    keys: Buffer,
-    vals: Buffer,
-    keys_alt: Buffer,
-    vals_alt: Buffer,
-    /// Candidate values, `[capacity][planes]` (geo, geo m, geo v).
-    cand: Buffer,
-    heads: Buffer,
-    scan_out: Buffer,
-    corners: Buffer,
-    /// Unique values, `[planes][capacity]`.
-    out_vals: Buffer,
-}
-
-impl CandidateBuffers {
-    fn new(ctx: &Context, capacity: u32) -> Result<Self> {
-        let c = u64::from(capacity);
-        let dev = |name: &str, bytes: u64| ctx.buffer(name, bytes, Memory::Device);
-        Ok(CandidateBuffers {
-            capacity,
-            sort: RadixSort::new(ctx, capacity)?,
-            scan: PrefixScan::new(ctx, capacity)?,
-            keys: dev("topology.keys", c * 8)?,
-            vals: dev("topology.vals", c * 4)?,
-            keys_alt: dev("topology.keys_alt", c * 8)?,
-            vals_alt: dev("topology.vals_alt", c * 4)?,
-            cand: dev("topology.cand", c * 12)?,
-            heads: dev("topology.heads", c * 4)?,
-            scan_out: dev("topology.scan", c * 4)?,
-            corners: dev("topology.corners", c * 4)?,
-            out_vals: dev("topology.out_vals", c * 12)?,
-        })
-    }
-}
-
-/// Byte layout of the upload (host → device input) buffer: the new voxels' structure.
-struct InputLayout {
-    path: u64,
-    info: u64,
-    src: u64,
-    level: u64,
-    end: u64,
-}
-
-impl InputLayout {
-    fn new(voxels: u64) -> Self {
-        let path = 0;
-        let info = (path + voxels * 8).next_multiple_of(16);
-        let src = (info + voxels * 4).next_multiple_of(16);
-        let level = (src + voxels * 4).next_multiple_of(16);
-        let end = level + voxels * 4;
-        InputLayout {
-            path,
-            info,
-            src,
-            level,
-            end,
-        }
-    }
-}
-
 /// Adam moments of a scene on the device, laid out like [`Moments`]: [geo m, geo v,
 /// sh0 m, sh0 v, shs m, shs v].
 pub type DeviceMoments<'a> = [&'a Buffer; 6];
@@ -218,17 +101,6 @@ pub struct Changed {
     pub host: Scene,
 }
 
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct GatherPush {
-    index: u64,
-    src: u64,
-    dst: u64,
-    rows: u32,
-    width: u32,
-}
-push_constants!(GatherPush, kernels::ADAPT_GATHER_ROWS);
-
 /// Prune + subdivide with the grid points rebuilt on the GPU. See the module docs.
 pub struct Topology {
     ctx: Context,
@@ -244,11 +116,6 @@ pub struct Topology {
     readback: GrowBuffer,
     timestamps: Timestamps,
     stats: TopologyStats,
-}
-
-fn write_bytes(dst: &mut [u8], offset: u64, src: &[u8]) {
-    let o = offset as usize;
-    dst[o..o + src.len()].copy_from_slice(src);
 }
 
 impl Topology {
