@@ -536,10 +536,12 @@ fn constants_module(glsl: &Path, headers: &[&PathBuf]) -> String {
 /// - `raster/composite_k{K}[_maxw|_counters]`: forward compositing with K samples per
 ///   segment; `_maxw` also folds per-voxel max blend weights (the adaptive statistics
 ///   pass only); `_counters` also counts the walk's work (`bench --json`).
-/// - `train/backward_k{K}[_cas][_counters]`: its backward; `_cas` adds floats with a
-///   compare-and-swap loop (devices without float atomics).
-/// - `train/tv[_cas]`, `train/voxel_backward[_cas]`: TV and the per-voxel backward, with
-///   native float atomic adds or (`_cas`) a compare-and-swap loop.
+/// - `train/backward_k{K}[_cas|_det][_counters]`: its backward; `_cas` adds floats with a
+///   compare-and-swap loop (devices without float atomics), `_det` writes per-entry
+///   records for the ordered reduction (`--deterministic`).
+/// - `train/tv[_cas|_det]`, `train/voxel_backward[_cas|_det]`: TV and the per-voxel
+///   backward, with native float atomic adds, (`_cas`) a compare-and-swap loop, or
+///   (`_det`) plain per-voxel-corner writes for the ordered reduction.
 fn variants() -> Vec<Variant> {
     variant_table()
 }
@@ -560,6 +562,11 @@ fn variant_table() -> Vec<Variant> {
             vec![("FLOAT_ATOMICS", "1".to_string())],
         ));
         v.push((format!("{name}_cas"), body, vec![]));
+        v.push((
+            format!("{name}_det"),
+            body,
+            vec![("DETERMINISTIC", "1".to_string())],
+        ));
     }
     for k in 1..=3 {
         for (suffix, mode) in [
@@ -577,19 +584,22 @@ fn variant_table() -> Vec<Variant> {
                 d,
             ));
         }
-        for cas in [false, true] {
+        for (reduction, define) in [
+            ("", Some("FLOAT_ATOMICS")),
+            ("_cas", None),
+            ("_det", Some("DETERMINISTIC")),
+        ] {
             for counters in [false, true] {
                 let mut d = vec![("N_SAMP", k.to_string())];
-                if !cas {
-                    d.push(("FLOAT_ATOMICS", "1".into()));
+                if let Some(m) = define {
+                    d.push((m, "1".into()));
                 }
                 if counters {
                     d.push(("COUNTERS", "1".into()));
                 }
                 v.push((
                     format!(
-                        "train/backward_k{k}{}{}",
-                        if cas { "_cas" } else { "" },
+                        "train/backward_k{k}{reduction}{}",
                         if counters { "_counters" } else { "" }
                     ),
                     "backward.glsl",

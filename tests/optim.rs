@@ -15,6 +15,7 @@ mod common;
 
 use common::{context, finish, Rng};
 use svraster::gpu::{recorder, Buffer, Context, Memory};
+use svraster::train::backward::Reduction;
 use svraster::train::optim::{Adam, AdamConfig, Tv};
 
 const ADAM_TOL: f64 = 1e-6;
@@ -560,6 +561,9 @@ fn check_tv(
     weight: f32,
     rng: &mut Rng,
 ) -> TvErrors {
+    if tv.reduction() == Reduction::Ordered {
+        return check_tv_ordered(ctx, tv, layout, geo, weight, rng);
+    }
     let voxels = (layout.corners.len() / 8) as u32;
     let grad0: Vec<f32> = (0..layout.points)
         .map(|i| {
@@ -620,8 +624,91 @@ fn check_tv(
     }
 }
 
+/// The ordered variant: `grad` holds 8 floats per voxel (its corners), each the start
+/// value plus weight · ∂L_v/∂geo[corner] of that voxel alone, with plain adds.
+fn check_tv_ordered(
+    ctx: &Context,
+    tv: &mut Tv,
+    layout: &Layout,
+    geo: &[f32],
+    weight: f32,
+    rng: &mut Rng,
+) -> TvErrors {
+    let voxels = (layout.corners.len() / 8) as u32;
+    let grad0: Vec<f32> = (0..layout.corners.len())
+        .map(|i| {
+            if i % 3 == 0 {
+                0.0
+            } else {
+                rng.range(-10.0, 10.0) as f32
+            }
+        })
+        .collect();
+    let corners_b = ctx.buffer_from("test.corners", &layout.corners).unwrap();
+    let geo_b = ctx.buffer_from("test.geo", geo).unwrap();
+    let grad_b = ctx.buffer_from("test.vcorner", &grad0).unwrap();
+    ctx.submit_and_wait(|cmd| {
+        tv.record(
+            cmd,
+            corners_b.address(),
+            geo_b.address(),
+            grad_b.address(),
+            voxels,
+            weight,
+        )
+    })
+    .unwrap();
+    let value = tv.read_value().unwrap();
+    let grad: Vec<f32> = ctx.download_all(&grad_b).unwrap();
+    let geo64: Vec<f64> = geo.iter().map(|&g| f64::from(g)).collect();
+    let l_ref = ref_tv_value(&layout.corners, &geo64);
+    let e_value = (value - l_ref).abs() / l_ref.max(f64::MIN_POSITIVE);
+    assert!(
+        e_value <= TV_VALUE_TOL,
+        "TV value {value} vs reference {l_ref} (rel {e_value:e})"
+    );
+    let w = f64::from(weight);
+    let mut e_grad = 0.0f64;
+    for (v, c8) in layout.corners.chunks_exact(8).enumerate() {
+        for a in 0..8 {
+            let i = 8 * v + a;
+            let ga = geo64[c8[a] as usize];
+            let (mut d, mut s) = (0.0, 0.0);
+            for k in [4, 2, 1] {
+                let e = ga - geo64[c8[a ^ k] as usize];
+                d += e;
+                s += e.abs();
+            }
+            let expect = f64::from(grad0[i]) + w * 2.0 * d;
+            if weight == 0.0 {
+                assert_eq!(
+                    grad[i].to_bits(),
+                    grad0[i].to_bits(),
+                    "corner {i} untouched"
+                );
+                continue;
+            }
+            let bound = f64::from(grad0[i]).abs() + w.abs() * 2.0 * s;
+            let e = (f64::from(grad[i]) - expect).abs() / (grad_units(2) * bound.max(1e-30));
+            assert!(
+                e <= 1.0,
+                "voxel {v} corner {a}: grad {} expected {expect} (rel {e:e})",
+                grad[i]
+            );
+            e_grad = e_grad.max(e);
+        }
+    }
+    TvErrors {
+        value: e_value,
+        grad: e_grad,
+    }
+}
+
 fn tv_variants(ctx: &Context) -> Vec<Tv> {
-    let mut v = vec![Tv::new(ctx, false).unwrap()];
+    let mut v = vec![
+        Tv::new(ctx, false).unwrap(),
+        Tv::with_reduction(ctx, Reduction::Ordered).unwrap(),
+    ];
     assert!(!v[0].uses_float_atomics());
     let native = Tv::new(ctx, true).unwrap();
     assert_eq!(native.uses_float_atomics(), ctx.info().float_atomic_add);
@@ -653,16 +740,16 @@ fn tv_matches_f64_reference() {
                 let e = check_tv(&ctx, &mut tv, layout, &geo, weight, &mut rng);
                 worst = (worst.0.max(e.value), worst.1.max(e.grad));
                 println!(
-                    "tv (float atomics {}): layout {li} weight {weight}: rel error value {:.3e}, grad {:.3e} of the bound",
-                    tv.uses_float_atomics(),
+                    "tv ({:?}): layout {li} weight {weight}: rel error value {:.3e}, grad {:.3e} of the bound",
+                    tv.reduction(),
                     e.value,
                     e.grad
                 );
             }
         }
         println!(
-            "tv (float atomics {}): max rel error value {:.3e}, grad {:.3e} of the bound",
-            tv.uses_float_atomics(),
+            "tv ({:?}): max rel error value {:.3e}, grad {:.3e} of the bound",
+            tv.reduction(),
             worst.0,
             worst.1
         );
@@ -699,7 +786,11 @@ fn tv_weight_zero_and_empty() {
 fn tv_accumulates_and_grows() {
     let ctx = context();
     let mut rng = Rng(11);
-    for mut tv in tv_variants(&ctx) {
+    // Grid-point gradients (the ordered variant writes per voxel corner: check_tv).
+    for mut tv in tv_variants(&ctx)
+        .into_iter()
+        .filter(|t| t.reduction() != Reduction::Ordered)
+    {
         let small = dense_layout(&mut rng, 3, 0);
         let big = dense_layout(&mut rng, 30, 0);
         let points = big.points;

@@ -10,7 +10,9 @@
 
 mod common;
 
-use common::backward::{compare_within, forward_eval, gpu_grads, random_weights, BOUND};
+use common::backward::{
+    compare_within, forward_eval, gpu_grads, random_weights, reductions, BOUND,
+};
 use common::forward::{assert_within, compare, pixel, render, Errors};
 use common::reference;
 use common::reference_grad::{grads, LossSpec};
@@ -331,11 +333,11 @@ fn gradients_match_the_reference_on_drawn_scenes() {
         }
         checked(|| {
             let reference = grads(&scene, &cam, c.samples as usize, &pix, &spec);
-            for fa in [true, false] {
-                let g = gpu_grads(&ctx, &scene, &cam, c.samples, &pix, &spec, fa, None);
+            for red in reductions(&ctx) {
+                let g = gpu_grads(&ctx, &scene, &cam, c.samples, &pix, &spec, red, None);
                 let mut worst = [0.0; 4];
                 compare_within(
-                    &format!("{c:?} atomics {fa}"),
+                    &format!("{c:?} reduction {red:?}"),
                     &g,
                     &reference,
                     &mut worst,

@@ -1,16 +1,19 @@
 //! GPU training backward vs the f64 reference gradients (tests/common/reference_grad.rs),
-//! with native float atomics and with the compare-and-swap fallback, chunked and not,
+//! with native float atomics, the compare-and-swap fallback and the ordered
+//! (deterministic) reduction, chunked and not,
 //! K = 1..3; gradients stay finite at the numerical extremes.
 
 mod common;
 
 use common::backward::{
-    ambiguous, compare, compare_within, gpu_grads, gpu_grads_ss, random_weights,
+    ambiguous, compare, compare_within, default_reduction, gpu_grads, gpu_grads_ss, random_weights,
+    reductions,
 };
 use common::reference_grad::{grads, LossSpec, PixelWeights};
 use common::{camera_inside, camera_outside, context, finish, random_scene, scattered_scene, Rng};
 use svraster::data::Camera;
 use svraster::scene::Scene;
+use svraster::train::backward::Reduction;
 
 #[test]
 fn backward_matches_reference_on_random_scenes() {
@@ -46,10 +49,10 @@ fn backward_matches_reference_on_random_scenes() {
                 lambda_r: rng.range(0.1, 2.0),
             };
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
-            for fa in [true, false] {
-                let g = gpu_grads(&ctx, &scene, &cam, k, &pix, &spec, fa, None);
+            for red in reductions(&ctx) {
+                let g = gpu_grads(&ctx, &scene, &cam, k, &pix, &spec, red, None);
                 compare(
-                    &format!("scene {i} inside {inside} K {k} atomics {fa}"),
+                    &format!("scene {i} inside {inside} K {k} reduction {red:?}"),
                     &g,
                     &reference,
                     &mut worst,
@@ -91,14 +94,18 @@ fn each_loss_term_alone_and_small_chunks() {
         };
         for k in 1..=3u32 {
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
-            // Chunks of 7 entries: many dispatches, state carried between them.
-            let g = gpu_grads(&ctx, &scene, &cam, k, &pix, &spec, true, Some(7));
-            compare(
-                &format!("term {term} K {k} chunk 7"),
-                &g,
-                &reference,
-                &mut worst,
-            );
+            // Chunks of 7 entries: many dispatches, state carried between them; the
+            // ordered reduction with chunks of 3 and 3 records per gather pass (a voxel
+            // with more entries sums them over several passes).
+            for (red, chunk) in [(default_reduction(&ctx), 7), (Reduction::Ordered, 3)] {
+                let g = gpu_grads(&ctx, &scene, &cam, k, &pix, &spec, red, Some(chunk));
+                compare(
+                    &format!("term {term} K {k} {red:?} chunk {chunk}"),
+                    &g,
+                    &reference,
+                    &mut worst,
+                );
+            }
         }
     }
     println!(
@@ -168,11 +175,11 @@ fn long_tile_lists_at_the_default_chunk_size() {
     assert_eq!(hit, n as usize, "every voxel should be composited");
     let mut worst = [0.0; 4];
     let mut max_tile = 0;
-    for fa in [true, false] {
-        let g = gpu_grads(&ctx, &scene, &cam, 1, &pix, &spec, fa, None);
+    for red in reductions(&ctx) {
+        let g = gpu_grads(&ctx, &scene, &cam, 1, &pix, &spec, red, None);
         // 8192 composited voxels per ray in f32: bound 1e-3 (measured 1.9e-4).
         compare_within(
-            &format!("long tile, atomics {fa}"),
+            &format!("long tile, reduction {red:?}"),
             &g,
             &reference,
             &mut worst,
@@ -217,10 +224,10 @@ fn sparse_tiles_backward_matches_reference() {
             lambda_r: 0.5,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
-        for fa in [true, false] {
-            let g = gpu_grads(&ctx, &scene, &cam, k, &pix, &spec, fa, None);
+        for red in reductions(&ctx) {
+            let g = gpu_grads(&ctx, &scene, &cam, k, &pix, &spec, red, None);
             compare(
-                &format!("sparse K {k} atomics {fa}"),
+                &format!("sparse K {k} reduction {red:?}"),
                 &g,
                 &reference,
                 &mut worst,
@@ -274,10 +281,10 @@ fn near_opaque_voxels_backward_matches_reference() {
             lambda_r: 1.0,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
-        for fa in [true, false] {
-            let g = gpu_grads(&ctx, &scene, &cam, k, &pix, &spec, fa, None);
+        for red in reductions(&ctx) {
+            let g = gpu_grads(&ctx, &scene, &cam, k, &pix, &spec, red, None);
             compare(
-                &format!("near-opaque K {k} atomics {fa}"),
+                &format!("near-opaque K {k} reduction {red:?}"),
                 &g,
                 &reference,
                 &mut worst,
@@ -303,8 +310,8 @@ fn gradients_stay_finite_at_the_extremes() {
             lambda_dist: 1.0,
             lambda_r: 1.0,
         };
-        for fa in [true, false] {
-            let g = gpu_grads(&ctx, scene, cam, k, &pix, &spec, fa, None);
+        for red in reductions(&ctx) {
+            let g = gpu_grads(&ctx, scene, cam, k, &pix, &spec, red, None);
             for (name, v) in [
                 ("geo", &g.geo),
                 ("sh0", &g.sh0),
@@ -435,7 +442,17 @@ fn supersampled_backward_matches_reference_at_render_resolution() {
         };
         let rpix = transpose_downsample(&pix, cam.width, cam.height, rw, rh);
         let reference = grads(&scene, &cam.resized(rw, rh), 1, &rpix, &spec);
-        let g = gpu_grads_ss(&ctx, &scene, &cam, 1, &pix, &spec, true, None, ss);
+        let g = gpu_grads_ss(
+            &ctx,
+            &scene,
+            &cam,
+            1,
+            &pix,
+            &spec,
+            default_reduction(&ctx),
+            None,
+            ss,
+        );
         compare(&format!("ss {ss}"), &g, &reference, &mut worst);
     }
     println!(

@@ -21,6 +21,13 @@
 // instead of 15 reductions and 15 single-lane atomics. Chunks of the list are separate
 // dispatches (last chunk first), carrying per-pixel state (T, A, Σ_after w, Σ_after w·m)
 // in `bstate`, which keeps each invocation under llvmpipe's loop limit.
+//
+// DETERMINISTIC (the ordered reduction, `--deterministic`): no float atomics. Each sorted
+// entry (one tile, one voxel, one sign octant) owns a VG_STRIDE record in B.records at
+// its emission index (emit_keys.comp's i: offsets[v] + sign rank · tiles + tile rank);
+// the subgroups of the tile's workgroup take turns over each batch (barriers between
+// turns), so the partial sums reach a record in subgroup order, and records_gather.comp
+// then sums a voxel's records in emission order. The walk itself is unchanged.
 #include "atomic_f32.glsl"
 #extension GL_KHR_shader_subgroup_shuffle : require
 #include "raster_params.glsl"
@@ -43,17 +50,27 @@ layout(push_constant) uniform Push {
 shared uint s_last;
 shared uint s_live;
 
+void add_component(uint i, float x) {
+#ifdef DETERMINISTIC
+    if (x != 0.0) pc.B.records.v[i] += x;
+#else
+    atomic_add_f32(pc.B.vgrad, i, x, pc.B.lost);
+#endif
+}
+
 float explin_grad(float x) {
     return x > 1.1 ? 1.0 : explin(x) * 0.909090909091;
 }
 
-// Adds the subgroup's sum of r[0..15) (r[15] must be 0) to vgrad[VG_STRIDE·v + c].
+// Adds the subgroup's sum of r[0..15) (r[15] must be 0) to out[base + c]: the voxel's
+// vgrad record with float atomics, the entry's record with plain adds (DETERMINISTIC:
+// this subgroup is the only one adding to it during its turn).
 // Reduce-scatter: each xor step halves the components a lane holds and sums them with
 // its partner's; after the steps over lane bits 0, 1, 2 lane L holds components
 // c0, c0 + 1 with c0 = 8·L₀ + 4·L₁ + 2·L₂, summed over its 8-lane group; with ≥ 16
 // lanes a fourth step leaves one component c0 + L₃, and plain butterflies sum the
 // 16-lane groups. Every step is uniform (called in uniform control flow).
-void reduce_add(float r[16], uint v) {
+void reduce_add(float r[16], uint base) {
     BackParams B = pc.B;
     uint lane = gl_SubgroupInvocationID;
     bool hi = (lane & 1u) != 0u;
@@ -76,17 +93,34 @@ void reduce_add(float r[16], uint v) {
     }
     uint c0 = ((lane & 1u) << 3u) | ((lane & 2u) << 1u) | ((lane & 4u) >> 1u);
     if (gl_SubgroupSize == 8u) {
-        atomic_add_f32(B.vgrad, VG_STRIDE * v + c0, r[0], B.lost);
-        atomic_add_f32(B.vgrad, VG_STRIDE * v + c0 + 1u, r[1], B.lost);
+        add_component(base + c0, r[0]);
+        add_component(base + c0 + 1u, r[1]);
     } else {
         hi = (lane & 8u) != 0u;
         float keep = hi ? r[1] : r[0];
         float send = hi ? r[0] : r[1];
         float x = keep + subgroupShuffleXor(send, 8u);
         for (uint o = 16u; o < gl_SubgroupSize; o <<= 1u) x += subgroupShuffleXor(x, o);
-        if (lane < 16u) atomic_add_f32(B.vgrad, VG_STRIDE * v + c0 + (hi ? 1u : 0u), x, B.lost);
+        if (lane < 16u) add_component(base + c0 + (hi ? 1u : 0u), x);
     }
 }
+
+#ifdef DETERMINISTIC
+// Record of the staged entry `e` of this workgroup's tile: its index in emit_keys.comp's
+// emission order (the sort keeps no index, but the emission is a pure function of the
+// voxel's rectangle and sign octants).
+uint record_index(Entry e) {
+    FrameParams P = pc.P;
+    uint v = e.val & 0x1fffffffu, sign = e.val >> 29u;
+    uvec2 tlo = uvec2(e.box.x & 0xffffu, e.box.x >> 16u) / 16u;
+    uvec2 thi = uvec2(e.box.y & 0xffffu, e.box.y >> 16u) / 16u;
+    uint tw = thi.x - tlo.x + 1u;
+    uint ntiles = tw * (thi.y - tlo.y + 1u);
+    uint si = bitCount(P.signs.v[v] & ((1u << sign) - 1u));
+    uvec2 t = gl_WorkGroupID.xy - tlo;
+    return P.offsets.v[v] + si * ntiles + t.y * tw + t.x;
+}
+#endif
 
 void main() {
     FrameParams P = pc.P;
@@ -176,6 +210,12 @@ void main() {
         if ((live & (1u << sg)) != 0u) c_build += 1u;
 #endif
 
+#ifdef DETERMINISTIC
+        // One subgroup at a time (uniform loop; the barrier makes its record adds
+        // visible to the next turn).
+        for (uint turn = 0u; turn < gl_NumSubgroups; ++turn) {
+        if (turn == sg) {
+#endif
         for (uint ww = 8u; ww > 0u; --ww) {
             uint bits = s_visit[8u * sg + ww - 1u];
             while (bits != 0u) {
@@ -305,9 +345,19 @@ void main() {
             }
             red[VG_PRIO] = prio;
             red[15] = 0.0;
-            reduce_add(red, e.val & 0x1fffffffu);
+#ifdef DETERMINISTIC
+            reduce_add(red, VG_STRIDE * record_index(e));
+#else
+            reduce_add(red, VG_STRIDE * (e.val & 0x1fffffffu));
+#endif
             }
         }
+#ifdef DETERMINISTIC
+        }
+        memoryBarrierBuffer();
+        barrier();
+        }
+#endif
     }
 #ifdef COUNTERS
     U64s ctr = P.counters;  // a writable copy of the address (the block is readonly)

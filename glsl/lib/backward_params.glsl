@@ -23,6 +23,15 @@ layout(buffer_reference, std430, buffer_reference_align = 16) buffer BackParams 
     F32s grad_shs;  // per voxel, 3 * stored coefficients
     F32s priority;  // per voxel, accumulated Σ|α ∂L/∂α|
     U32s lost;      // CAS give-ups (atomic_f32.glsl)
+    // Ordered reduction only (DETERMINISTIC variants; 0 otherwise):
+    F32s records;   // per emitted entry, VG_STRIDE floats (backward.glsl)
+    F32s vcorner;   // per voxel, 8 corner-density gradients before the grid-point sums
+    U32s point_off;   // per grid point + 1: start of its (voxel · 8 + corner) list
+    U32s point_list;  // per voxel corner, grouped by grid point, ascending
+    uint gather_span; // records a voxel sums per records_gather pass
+    uint pad1;
+    uint pad2;
+    uint pad3;
 };
 
 // dout: gradients w.r.t. the frame's outputs at output resolution (rgb with background,

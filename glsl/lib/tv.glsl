@@ -5,6 +5,9 @@
 // The adds go through atomic_add_f32 (grid points are shared between voxels). The sum
 // of L_v over each workgroup (weight not applied) goes to partials[group] by a
 // shared-memory tree reduction; the host adds the partials in f64.
+// DETERMINISTIC (train/tv_det): `grad` is the per-voxel corner array (8 floats per voxel,
+// voxel_backward's B.vcorner) and the adds are plain, one invocation per voxel;
+// point_gather.comp then sums per grid point in a fixed order.
 #include "atomic_f32.glsl"
 layout(local_size_x = 256) in;
 
@@ -46,7 +49,11 @@ void main() {
             if ((c & 1u) == 0u) L += e2 * e2;
         }
         float s = 2.0 * pc.weight;
+#ifdef DETERMINISTIC
+        for (uint c = 0u; c < 8u; ++c) pc.grad.v[8u * vox + c] += s * d[c];
+#else
         for (uint c = 0u; c < 8u; ++c) atomic_add_f32(pc.grad, idx[c], s * d[c], pc.lost);
+#endif
     }
     red[lid] = L;
     barrier();

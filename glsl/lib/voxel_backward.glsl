@@ -4,6 +4,8 @@
 // voxels off screen get zeros), ∂L/∂normal through n = ∇/|∇| and the centre gradient to
 // its 8 corner densities, and those through the corner indices into the grid points'
 // gradients (float atomics: neighbours share grid points). Adds the entry priorities.
+// DETERMINISTIC: the 8 corner gradients are written to B.vcorner (per voxel) instead, and
+// point_gather.comp sums them per grid point in a fixed order.
 #include "atomic_f32.glsl"
 #include "raster_params.glsl"
 #include "sh.glsl"
@@ -27,6 +29,9 @@ void main() {
     if (P.counts.v[v] == 0u) {
         for (uint c = 0u; c < 3u; ++c) B.grad_sh0.v[3u * v + c] = 0.0;
         for (uint k = 0u; k < 3u * stride; ++k) B.grad_shs.v[3u * stride * v + k] = 0.0;
+#ifdef DETERMINISTIC
+        for (uint c = 0u; c < 8u; ++c) B.vcorner.v[8u * v + c] = 0.0;
+#endif
         return;
     }
     uint rec = VG_STRIDE * v;
@@ -64,6 +69,10 @@ void main() {
                      ((c & 1u) != 0u ? dgrad.z : -dgrad.z);
         }
     }
+#ifdef DETERMINISTIC
+    for (uint c = 0u; c < 8u; ++c) B.vcorner.v[8u * v + c] = dg[c];
+#else
     for (uint c = 0u; c < 8u; ++c) atomic_add_f32(B.grad_geo, P.corners.v[8u * v + c], dg[c], B.lost);
+#endif
     B.priority.v[v] += B.vgrad.v[rec + VG_PRIO];
 }

@@ -473,6 +473,7 @@ fn bench_train(
             "ss": cfg.ss,
             "sh_degree": sh_used,
             "float_atomics": t.float_atomics(),
+            "reduction": t.reduction().name(),
             "iters": iters,
             "median_ms_per_iter": median(&total),
             "wall_median_ms_per_iter": median(&wall),

@@ -144,6 +144,12 @@ enum Command {
         /// the device's memory; same as --set max_voxels=N).
         #[arg(long)]
         max_voxels: Option<u64>,
+        /// Bitwise-reproducible training: gradients summed in a fixed order instead of
+        /// with float atomics, so two runs with the same seed and data on the same device
+        /// write identical checkpoints (slower: README "Deterministic training"; same as
+        /// --set deterministic=true).
+        #[arg(long)]
+        deterministic: bool,
         /// Continue the run in --out from its last checkpoint.
         #[arg(long)]
         resume: bool,
@@ -357,11 +363,15 @@ pub fn run() -> anyhow::Result<()> {
             seed,
             mut set,
             max_voxels,
+            deterministic,
             resume,
             source,
         } => {
             if let Some(n) = max_voxels {
                 set.push(format!("max_voxels={n}"));
+            }
+            if deterministic {
+                set.push("deterministic=true".into());
             }
             let s = train::run_train(
                 &ctx,

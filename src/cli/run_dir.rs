@@ -111,7 +111,43 @@ fn optimizer_bytes(iter: u32, model: &[u8], state: &[Vec<f32>]) -> anyhow::Resul
         ("iteration".to_string(), iter.to_string()),
         ("model_fnv64".to_string(), format!("{:016x}", fnv64(model))),
     ]);
-    Ok(safetensors::serialize(views, Some(meta))?)
+    sorted_header(safetensors::serialize(views, Some(meta))?)
+}
+
+/// `bytes` (a safetensors file) with its JSON header's keys in sorted order, the
+/// `__metadata__` entries too, padded with spaces to the same length: the crate writes
+/// the metadata in its HashMap's per-process random order, so two identical states
+/// would otherwise give different files (`--deterministic` promises identical bytes).
+fn sorted_header(mut bytes: Vec<u8>) -> anyhow::Result<Vec<u8>> {
+    use std::collections::BTreeMap;
+    anyhow::ensure!(
+        bytes.len() >= 8,
+        "safetensors output of {} bytes",
+        bytes.len()
+    );
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
+    anyhow::ensure!(8 + n <= bytes.len(), "safetensors header past the end");
+    let header: BTreeMap<String, serde_json::Value> = serde_json::from_slice(&bytes[8..8 + n])?;
+    let mut out = String::from("{");
+    for (i, (k, v)) in header.iter().enumerate() {
+        if i > 0 {
+            out.push(',');
+        }
+        out.push_str(&serde_json::to_string(k)?);
+        out.push(':');
+        if k == "__metadata__" {
+            let meta: BTreeMap<String, String> = serde_json::from_value(v.clone())?;
+            out.push_str(&serde_json::to_string(&meta)?);
+        } else {
+            out.push_str(&serde_json::to_string(v)?);
+        }
+    }
+    out.push('}');
+    anyhow::ensure!(out.len() <= n, "sorted safetensors header grew");
+    let dst = &mut bytes[8..8 + n];
+    dst[..out.len()].copy_from_slice(out.as_bytes());
+    dst[out.len()..].fill(b' ');
+    Ok(bytes)
 }
 
 /// Writes the checkpoint pair model.safetensors + optimizer.safetensors (Adam moments,
@@ -277,6 +313,17 @@ mod tests {
         let (iter, hash, back) = load_optimizer(&path).unwrap();
         assert_eq!((iter, hash), (1234, fnv64(&model)));
         assert_eq!(back, state); // bit-exact, empty groups included
+                                 // The same state gives the same bytes (the header's metadata sorted).
+        let a = optimizer_bytes(1234, &model, &state).unwrap();
+        assert!((0..8).all(|_| optimizer_bytes(1234, &model, &state).unwrap() == a));
+        let n = u64::from_le_bytes(a[..8].try_into().unwrap()) as usize;
+        let text = std::str::from_utf8(&a[8..8 + n]).unwrap();
+        let (f, i, m) = (
+            text.find("\"format\"").unwrap(),
+            text.find("\"iteration\"").unwrap(),
+            text.find("\"model_fnv64\"").unwrap(),
+        );
+        assert!(f < i && i < m, "{text}");
 
         // Another format, a missing tensor, junk: each a named error.
         let other = |meta: HashMap<String, String>, names: &[&str]| {

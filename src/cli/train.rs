@@ -268,6 +268,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             "voxel_budget": trainer.budget(),
             "device": ctx.info().name,
             "float_atomics": trainer.float_atomics(),
+            "reduction": trainer.reduction().name(),
         });
         atomic_write(&cfg_path, serde_json::to_string_pretty(&doc)?.as_bytes())?;
         let _ = std::fs::remove_file(run.join("stats.jsonl"));

@@ -158,7 +158,7 @@ impl Trainer {
         ];
         self.scene = changed.scene;
         self.scene.sh_degree = degree;
-        self.grads = Gradients::new(&self.ctx, &self.scene)?;
+        self.grads = Gradients::with_reduction(&self.ctx, &self.scene, self.backward.reduction())?;
         // Structure only: the parameters live on the device (download_params).
         self.host = changed.host;
         Ok(())

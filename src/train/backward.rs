@@ -7,6 +7,13 @@
 //! reductions, one float atomic per subgroup and voxel) → **voxel_backward** (SH
 //! coefficients, normals, scatter to grid points). Devices without
 //! `shaderBufferFloat32AtomicAdd` get compare-and-swap variants of the two atomic kernels.
+//!
+//! [`Reduction::Ordered`] (`--deterministic`) replaces every float atomic by sums in a
+//! fixed order: the walk writes one record per entry (subgroups of a tile take turns),
+//! **records_gather** sums a voxel's records in emission order, voxel_backward and TV
+//! write per voxel corner, and **point_gather** sums each grid point's corners in
+//! ascending order ([`Gradients`] holds the grid point → corner lists). Two runs on one
+//! device then give the same bits.
 
 use ash::vk;
 
@@ -38,6 +45,103 @@ const BS_CHANNELS: u64 = crate::gpu::glsl::BS_CHANNELS as u64;
 /// Floats per voxel of the per-voxel gradient record.
 const VG_STRIDE: u64 = crate::gpu::glsl::VG_STRIDE as u64;
 
+/// How gradient contributions that meet at one parameter are summed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reduction {
+    /// Native float atomic adds (VK_EXT_shader_atomic_float): the fastest; the order of
+    /// the adds, and with it the last bits of the sums, varies from run to run.
+    Atomic,
+    /// Compare-and-swap loops on the bits (any device); the order varies likewise.
+    CompareSwap,
+    /// No float atomics: per-entry and per-corner records summed in a fixed order, so two
+    /// runs with the same inputs on one device give bitwise-identical gradients
+    /// (`--deterministic`; costs one record of 64 bytes per entry and 68 bytes per voxel).
+    Ordered,
+}
+
+impl Reduction {
+    /// Ordered when `deterministic`, else native float atomics where the device has
+    /// them and `float_atomics` allows it, else compare-and-swap.
+    pub fn choose(ctx: &Context, float_atomics: bool, deterministic: bool) -> Reduction {
+        if deterministic {
+            Reduction::Ordered
+        } else if float_atomics && ctx.info().float_atomic_add {
+            Reduction::Atomic
+        } else {
+            Reduction::CompareSwap
+        }
+    }
+
+    /// Name in logs and JSON: "float-atomics", "compare-and-swap" or "ordered".
+    pub fn name(self) -> &'static str {
+        match self {
+            Reduction::Atomic => "float-atomics",
+            Reduction::CompareSwap => "compare-and-swap",
+            Reduction::Ordered => "ordered",
+        }
+    }
+}
+
+/// The grid point → voxel corner lists of a layout, for [`Reduction::Ordered`]: grid
+/// point g's corners are `list[off[g]..off[g + 1]]`, each `8 · voxel + corner`, ascending,
+/// with the per-corner gradient buffer they index.
+pub struct PointLists {
+    off: Buffer,
+    list: Buffer,
+    vcorner: Buffer,
+}
+
+impl PointLists {
+    /// Builds the lists of `scene` on the host from its corner indices (downloaded).
+    pub fn new(ctx: &Context, scene: &SceneGpu) -> Result<PointLists> {
+        let corners: Vec<u32> = if scene.voxels == 0 {
+            Vec::new()
+        } else {
+            ctx.download(&scene.corners, 0, scene.voxels as usize * 8)?
+        };
+        let (off, list) = point_lists(&corners, scene.grid_points)?;
+        Ok(PointLists {
+            off: ctx.buffer_from("grad.point-offsets", &off)?,
+            list: ctx.buffer_from(
+                "grad.point-corners",
+                if list.is_empty() { &[0u32][..] } else { &list },
+            )?,
+            vcorner: ctx.zeroed_buffer("grad.voxel-corners", (corners.len().max(1) * 4) as u64)?,
+        })
+    }
+
+    /// Device bytes per voxel the lists and the per-corner gradients take (8 corners:
+    /// 4 bytes of list and 4 of gradient each; the offsets, one per grid point, add
+    /// about 4 more).
+    pub const BYTES_PER_VOXEL: u64 = 68;
+}
+
+/// Counting sort of corner indices by grid point: `(off, list)` with grid point g's
+/// corners (`8 · voxel + corner`) in `list[off[g]..off[g + 1]]`, ascending.
+pub fn point_lists(corners: &[u32], grid_points: u32) -> Result<(Vec<u32>, Vec<u32>)> {
+    let mut off = vec![0u32; grid_points as usize + 1];
+    for (i, &g) in corners.iter().enumerate() {
+        if g >= grid_points {
+            return Err(Error::Invalid(format!(
+                "voxel {} corner {} names grid point {g}, but the layout has {grid_points}",
+                i / 8,
+                i % 8
+            )));
+        }
+        off[g as usize + 1] += 1;
+    }
+    for g in 0..grid_points as usize {
+        off[g + 1] += off[g];
+    }
+    let mut next = off.clone();
+    let mut list = vec![0u32; corners.len()];
+    for (i, &g) in corners.iter().enumerate() {
+        list[next[g as usize] as usize] = i as u32;
+        next[g as usize] += 1;
+    }
+    Ok((off, list))
+}
+
 /// Gradients of the model parameters (same layouts as [`SceneGpu`]'s buffers), and the
 /// per-voxel subdivision priority Σ|α·∂L/∂α|, which accumulates over backward passes
 /// until [`Gradients::record_clear_priority`].
@@ -49,11 +153,23 @@ pub struct Gradients {
     pub voxels: u32,
     pub grid_points: u32,
     pub shs_per_voxel: u32,
+    /// The grid point lists of [`Reduction::Ordered`] (None for the atomic reductions).
+    points: Option<PointLists>,
 }
 
 impl Gradients {
-    /// Zeroed gradient buffers for `scene`.
+    /// Zeroed gradient buffers for `scene` (for the atomic reductions).
     pub fn new(ctx: &Context, scene: &SceneGpu) -> Result<Gradients> {
+        Self::with_reduction(ctx, scene, Reduction::Atomic)
+    }
+
+    /// Zeroed gradient buffers for `scene` and a backward with `reduction` (Ordered also
+    /// builds the grid point lists: the scene's corners are downloaded once).
+    pub fn with_reduction(
+        ctx: &Context,
+        scene: &SceneGpu,
+        reduction: Reduction,
+    ) -> Result<Gradients> {
         let n = scene.voxels.max(1) as u64;
         let mk = |name: &str, floats: u64| ctx.zeroed_buffer(name, floats * 4);
         Ok(Gradients {
@@ -64,6 +180,10 @@ impl Gradients {
             voxels: scene.voxels,
             grid_points: scene.grid_points,
             shs_per_voxel: scene.shs_per_voxel,
+            points: match reduction {
+                Reduction::Ordered => Some(PointLists::new(ctx, scene)?),
+                _ => None,
+            },
         })
     }
 
@@ -79,6 +199,7 @@ impl Gradients {
             voxels: 0,
             grid_points: 0,
             shs_per_voxel: 0,
+            points: None,
         })
     }
 
@@ -125,6 +246,14 @@ struct BackParams {
     grad_shs: u64,
     priority: u64,
     lost: u64,
+    records: u64,
+    vcorner: u64,
+    point_off: u64,
+    point_list: u64,
+    gather_span: u32,
+    pad1: u32,
+    pad2: u32,
+    pad3: u32,
 }
 gpu_layout!(BackParams, BackParams);
 
@@ -158,6 +287,30 @@ push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_COUNTERS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_CAS_COUNTERS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_CAS_COUNTERS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_CAS_COUNTERS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_DET);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_DET);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_DET);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_DET_COUNTERS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_DET_COUNTERS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_DET_COUNTERS);
+push_constants!(ChunkPush, kernels::TRAIN_RECORDS_GATHER);
+push_constants!(Push2, kernels::TRAIN_VOXEL_BACKWARD_DET);
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct PointPush {
+    frame: u64,
+    back: u64,
+    points: u32,
+    pad: u32,
+}
+push_constants!(PointPush, kernels::TRAIN_POINT_GATHER);
+
+/// Kernels of the ordered reduction's two gathers.
+struct OrderedKernels {
+    records: Kernel,
+    points: Kernel,
+}
 
 /// The backward pass with its kernels and scratch buffers.
 pub struct Backward {
@@ -166,23 +319,36 @@ pub struct Backward {
     /// [plain, work counters][samples - 1].
     backward: [[Kernel; 3]; 2],
     voxel: Kernel,
-    float_atomics: bool,
+    reduction: Reduction,
+    ordered: Option<OrderedKernels>,
     chunk_size: u32,
+    /// Records per voxel one records_gather pass sums (the loop limit).
+    gather_span: u32,
     params: Buffer,
     lost: Buffer,
     dout: GrowBuffer,
     dimg: GrowBuffer,
     bstate: GrowBuffer,
     vgrad: GrowBuffer,
+    records: GrowBuffer,
 }
 
 impl Backward {
     /// Kernels for this device: native float atomics when the device has them and
     /// `float_atomics` allows it, compare-and-swap otherwise.
     pub fn new(ctx: &Context, float_atomics: bool) -> Result<Backward> {
-        let fa = float_atomics && ctx.info().float_atomic_add;
-        let (k, kc, v) = if fa {
-            (
+        Self::with_reduction(ctx, Reduction::choose(ctx, float_atomics, false))
+    }
+
+    /// Kernels for `reduction` ([`Reduction::Atomic`] needs the device's float atomics).
+    pub fn with_reduction(ctx: &Context, reduction: Reduction) -> Result<Backward> {
+        if reduction == Reduction::Atomic && !ctx.info().float_atomic_add {
+            return Err(Error::Invalid(
+                "this device has no float atomic adds; use Reduction::choose".into(),
+            ));
+        }
+        let (k, kc, v) = match reduction {
+            Reduction::Atomic => (
                 [
                     &kernels::TRAIN_BACKWARD_K1,
                     &kernels::TRAIN_BACKWARD_K2,
@@ -194,9 +360,8 @@ impl Backward {
                     &kernels::TRAIN_BACKWARD_K3_COUNTERS,
                 ],
                 &kernels::TRAIN_VOXEL_BACKWARD,
-            )
-        } else {
-            (
+            ),
+            Reduction::CompareSwap => (
                 [
                     &kernels::TRAIN_BACKWARD_K1_CAS,
                     &kernels::TRAIN_BACKWARD_K2_CAS,
@@ -208,7 +373,27 @@ impl Backward {
                     &kernels::TRAIN_BACKWARD_K3_CAS_COUNTERS,
                 ],
                 &kernels::TRAIN_VOXEL_BACKWARD_CAS,
-            )
+            ),
+            Reduction::Ordered => (
+                [
+                    &kernels::TRAIN_BACKWARD_K1_DET,
+                    &kernels::TRAIN_BACKWARD_K2_DET,
+                    &kernels::TRAIN_BACKWARD_K3_DET,
+                ],
+                [
+                    &kernels::TRAIN_BACKWARD_K1_DET_COUNTERS,
+                    &kernels::TRAIN_BACKWARD_K2_DET_COUNTERS,
+                    &kernels::TRAIN_BACKWARD_K3_DET_COUNTERS,
+                ],
+                &kernels::TRAIN_VOXEL_BACKWARD_DET,
+            ),
+        };
+        let ordered = match reduction {
+            Reduction::Ordered => Some(OrderedKernels {
+                records: Kernel::new(ctx, &kernels::TRAIN_RECORDS_GATHER)?,
+                points: Kernel::new(ctx, &kernels::TRAIN_POINT_GATHER)?,
+            }),
+            _ => None,
         };
         let lost = ctx.zeroed_buffer("backward.lost", 16)?;
         Ok(Backward {
@@ -227,8 +412,18 @@ impl Backward {
                 ],
             ],
             voxel: Kernel::new(ctx, v)?,
-            float_atomics: fa,
-            chunk_size: ctx.info().backward_chunk_entries(fa),
+            reduction,
+            ordered,
+            // The ordered walk adds no loops to the atomic one but a turn per subgroup
+            // and batch (32 per 256 entries on 8-lane subgroups): the atomic chunk.
+            chunk_size: ctx
+                .info()
+                .backward_chunk_entries(reduction != Reduction::CompareSwap),
+            gather_span: if ctx.info().loop_limit() {
+                16384
+            } else {
+                u32::MAX
+            },
             params: ctx.buffer(
                 "backward.params",
                 std::mem::size_of::<BackParams>() as u64,
@@ -239,12 +434,24 @@ impl Backward {
             dimg: GrowBuffer::new("backward.dimg"),
             bstate: GrowBuffer::new("backward.state"),
             vgrad: GrowBuffer::new("backward.voxel-grads"),
+            records: GrowBuffer::new("backward.entry-records"),
         })
     }
 
     /// Whether the native float-atomic kernels are in use.
     pub fn float_atomics(&self) -> bool {
-        self.float_atomics
+        self.reduction == Reduction::Atomic
+    }
+
+    /// How the gradients are summed.
+    pub fn reduction(&self) -> Reduction {
+        self.reduction
+    }
+
+    /// Records per voxel one records_gather pass sums (tests shrink it to exercise
+    /// several passes).
+    pub fn set_gather_span(&mut self, records: u32) {
+        self.gather_span = records.max(1);
     }
 
     /// Entries per backward dispatch (tests shrink it to exercise chunking).
@@ -288,11 +495,25 @@ impl Backward {
         grads: &Gradients,
         losses: &EntryLosses,
     ) -> Result<()> {
-        self.record_timed(cmd, frame, stats, scene, samples, grads, losses, None)
+        self.record_timed(
+            cmd,
+            frame,
+            stats,
+            scene,
+            samples,
+            grads,
+            losses,
+            None,
+            |_, _| Ok(()),
+        )
     }
 
     /// [`Backward::record`] with timestamps after each part (`backward.prepare`,
-    /// `backward.walk`, `backward.voxel`) when `ts` is given.
+    /// `backward.walk`, `backward.voxel`, `backward.points` for the ordered reduction)
+    /// when `ts` is given, and `geo_terms(cmd, target)` recorded after the per-voxel
+    /// stage to add further density-gradient terms (TV) to `target`: the grid-point
+    /// gradient buffer, or for [`Reduction::Ordered`] the per-voxel-corner buffer
+    /// (8 floats per voxel) that the grid-point gather then sums.
     #[allow(clippy::too_many_arguments)]
     pub fn record_timed(
         &mut self,
@@ -304,6 +525,7 @@ impl Backward {
         grads: &Gradients,
         losses: &EntryLosses,
         mut ts: Option<&mut Timestamps>,
+        geo_terms: impl FnOnce(vk::CommandBuffer, u64) -> Result<()>,
     ) -> Result<()> {
         if !(1..=3).contains(&samples) {
             return Err(Error::Invalid(format!(
@@ -320,7 +542,22 @@ impl Backward {
                 "the backward needs a complete frame (see Renderer::grow_for)".into(),
             ));
         }
+        let points = match (self.reduction, grads.points.as_ref()) {
+            (Reduction::Ordered, None) => {
+                return Err(Error::Invalid(
+                    "the ordered reduction needs gradients made with Reduction::Ordered".into(),
+                ))
+            }
+            (Reduction::Ordered, Some(p)) => Some(p),
+            _ => None,
+        };
         self.prepare(frame, scene.voxels)?;
+        if points.is_some() {
+            self.records.ensure(
+                &self.ctx,
+                u64::from(stats.entries_used).max(1) * VG_STRIDE * 4,
+            )?;
+        }
         let ctx = self.ctx.clone();
         let chunks = stats.max_tile_entries.div_ceil(self.chunk_size).max(1);
         let get = |b: &GrowBuffer| b.address();
@@ -342,13 +579,25 @@ impl Backward {
             grad_shs: grads.shs.address(),
             priority: grads.priority.address(),
             lost: self.lost.address(),
+            records: points.map_or(0, |_| self.records.address()),
+            vcorner: points.map_or(0, |p| p.vcorner.address()),
+            point_off: points.map_or(0, |p| p.off.address()),
+            point_list: points.map_or(0, |p| p.list.address()),
+            gather_span: self.gather_span,
+            pad1: 0,
+            pad2: 0,
+            pad3: 0,
         };
         let dev = ctx.device();
         unsafe {
             dev.cmd_update_buffer(cmd, self.params.raw(), 0, bytemuck::bytes_of(&params));
         }
         recorder::zero(&ctx, cmd, self.vgrad.get());
-        recorder::zero(&ctx, cmd, &grads.geo);
+        if points.is_some() {
+            recorder::zero(&ctx, cmd, self.records.get());
+        } else {
+            recorder::zero(&ctx, cmd, &grads.geo);
+        }
         recorder::barrier(&ctx, cmd);
         let p2 = Push2 {
             frame: frame.params,
@@ -374,13 +623,52 @@ impl Backward {
             );
             recorder::barrier(&ctx, cmd);
         }
+        if let (Some(_), Some(kk)) = (points, self.ordered.as_ref()) {
+            // A voxel has at most one entry per tile and sign octant.
+            let most = (u64::from(frame.tiles_x) * u64::from(frame.tiles_y) * 8)
+                .min(u64::from(stats.entries_used).max(1));
+            let passes = most.div_ceil(u64::from(self.gather_span)) as u32;
+            for pass in 0..passes {
+                kk.records.dispatch_1d(
+                    cmd,
+                    &ChunkPush {
+                        frame: frame.params,
+                        back: self.params.address(),
+                        chunk: pass,
+                        pad: 0,
+                    },
+                    scene.voxels.max(1),
+                );
+                recorder::barrier(&ctx, cmd);
+            }
+        }
         if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "backward.walk");
         }
         self.voxel.dispatch_1d(cmd, &p2, scene.voxels.max(1));
         recorder::barrier(&ctx, cmd);
-        if let Some(t) = ts {
+        if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "backward.voxel");
+        }
+        match (points, self.ordered.as_ref()) {
+            (Some(p), Some(kk)) => {
+                geo_terms(cmd, p.vcorner.address())?;
+                kk.points.dispatch_1d(
+                    cmd,
+                    &PointPush {
+                        frame: frame.params,
+                        back: self.params.address(),
+                        points: scene.grid_points,
+                        pad: 0,
+                    },
+                    scene.grid_points.max(1),
+                );
+                recorder::barrier(&ctx, cmd);
+                if let Some(t) = ts {
+                    t.mark(cmd, "backward.points");
+                }
+            }
+            _ => geo_terms(cmd, grads.geo.address())?,
         }
         Ok(())
     }

@@ -83,6 +83,11 @@ pub struct TrainConfig {
     /// paper's dense Adam, where such parameters still move by their decaying momentum.
     #[serde(default)]
     pub sparse_adam: bool,
+    /// Deterministic training (`--deterministic`): gradients summed in a fixed order
+    /// instead of with float atomics ([`super::backward::Reduction::Ordered`]), so two
+    /// runs with the same seed and data on the same device write identical checkpoints.
+    #[serde(default)]
+    pub deterministic: bool,
     /// Loss weights and their windows.
     pub lambda_mse: f32,
     pub lambda_ssim: f32,
@@ -188,6 +193,7 @@ impl Default for TrainConfig {
             beta2: 0.99,
             eps: 1e-15,
             sparse_adam: false,
+            deterministic: false,
             lambda_mse: 1.0,
             lambda_ssim: 0.02,
             lambda_t: 0.1,

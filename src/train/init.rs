@@ -3,7 +3,7 @@
 
 use rand::SeedableRng;
 
-use super::backward::{Backward, Gradients};
+use super::backward::{Backward, Gradients, PointLists, Reduction};
 use super::config::{Layout, TrainConfig};
 use super::loss::PixelLoss;
 use super::optim::{Adam, Tv};
@@ -168,7 +168,13 @@ pub fn voxel_budget_with(
         return cfg.max_voxels;
     }
     let memory = memory.map_or(info.device_local_heap_bytes, |b| b.available_bytes());
-    let mut budget = memory / 2 / bytes_per_voxel(cfg.sh_degree);
+    let per_voxel = bytes_per_voxel(cfg.sh_degree)
+        + if cfg.deterministic {
+            PointLists::BYTES_PER_VOXEL
+        } else {
+            0
+        };
+    let mut budget = memory / 2 / per_voxel;
     let shs = (crate::scene::sh_coeffs(cfg.sh_degree) as u64 - 1) * 12;
     let largest = shs.max(8 * 8); // higher-order SH, or 8 candidate keys per voxel
     if info.max_memory_allocation_size > 0 {
@@ -241,10 +247,11 @@ impl Trainer {
         }
         let mut scene = SceneGpu::upload(ctx, &host)?;
         scene.sh_degree = 0;
-        let grads = Gradients::new(ctx, &scene)?;
+        let float_atomics = std::env::var("SVRASTER_NO_FLOAT_ATOMICS").is_err();
+        let reduction = Reduction::choose(ctx, float_atomics, cfg.deterministic);
+        let grads = Gradients::with_reduction(ctx, &scene, reduction)?;
         let mom = Self::moments(ctx, &scene, None)?;
         let views = TrainViews::upload(ctx, train, TrainViews::default_chunk_bytes(ctx))?;
-        let float_atomics = std::env::var("SVRASTER_NO_FLOAT_ATOMICS").is_err();
         let schedule = cfg.schedule();
         Ok(Trainer {
             ctx: ctx.clone(),
@@ -256,10 +263,10 @@ impl Trainer {
             grads,
             mom,
             renderer,
-            backward: Backward::new(ctx, float_atomics)?,
+            backward: Backward::with_reduction(ctx, reduction)?,
             ssim: Ssim::new(ctx)?,
             adam: Adam::new(ctx)?,
-            tv: Tv::new(ctx, float_atomics)?,
+            tv: Tv::with_reduction(ctx, reduction)?,
             loss: PixelLoss::new(ctx)?,
             normal: super::loss::NormalLoss::new(ctx)?,
             views,

@@ -14,6 +14,7 @@
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
 
+use super::backward::Reduction;
 use crate::error::{Error, Result};
 use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel};
 use crate::push_constants;
@@ -182,12 +183,13 @@ struct TvPush {
 }
 push_constants!(TvPush, kernels::TRAIN_TV);
 push_constants!(TvPush, kernels::TRAIN_TV_CAS);
+push_constants!(TvPush, kernels::TRAIN_TV_DET);
 
 /// The TV regulariser on the grid-point densities.
 pub struct Tv {
     ctx: Context,
     kernel: Kernel,
-    float_atomics: bool,
+    reduction: Reduction,
     partials: GrowBuffer,
     /// Partials buffers replaced by a larger one: a command buffer recorded but not yet
     /// completed may still write them, so they live as long as `self` (growth by 1.25×
@@ -201,16 +203,27 @@ impl Tv {
     /// `float_atomics`: use native float atomic adds where the device has them; false
     /// forces the compare-and-swap variant.
     pub fn new(ctx: &Context, float_atomics: bool) -> Result<Tv> {
-        let float_atomics = float_atomics && ctx.info().float_atomic_add;
-        let src = if float_atomics {
-            &kernels::TRAIN_TV
-        } else {
-            &kernels::TRAIN_TV_CAS
+        Self::with_reduction(ctx, Reduction::choose(ctx, float_atomics, false))
+    }
+
+    /// The variant for `reduction`: with [`Reduction::Ordered`], [`Tv::record`]'s `grad`
+    /// is the backward's per-voxel-corner buffer (8 floats per voxel), not the
+    /// grid-point gradients (see [`super::Backward::record_timed`]).
+    pub fn with_reduction(ctx: &Context, reduction: Reduction) -> Result<Tv> {
+        let src = match reduction {
+            Reduction::Atomic if ctx.info().float_atomic_add => &kernels::TRAIN_TV,
+            Reduction::Atomic => {
+                return Err(Error::Invalid(
+                    "this device has no float atomic adds; use Reduction::choose".into(),
+                ))
+            }
+            Reduction::CompareSwap => &kernels::TRAIN_TV_CAS,
+            Reduction::Ordered => &kernels::TRAIN_TV_DET,
         };
         Ok(Tv {
             ctx: ctx.clone(),
             kernel: Kernel::new(ctx, src)?,
-            float_atomics,
+            reduction,
             partials: GrowBuffer::new("tv.partials"),
             retired: Vec::new(),
             lost: ctx.buffer_from("tv.lost", &[0u32; 4])?,
@@ -220,7 +233,12 @@ impl Tv {
 
     /// Whether the native float-atomic variant is in use.
     pub fn uses_float_atomics(&self) -> bool {
-        self.float_atomics
+        self.reduction == Reduction::Atomic
+    }
+
+    /// How the gradient adds are made.
+    pub fn reduction(&self) -> Reduction {
+        self.reduction
     }
 
     /// Records the TV of `voxels` voxels: `grad[i] += weight · ∂L_tv/∂geo[i]` (grid-point

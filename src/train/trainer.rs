@@ -15,7 +15,7 @@
 
 use rand::Rng;
 
-use super::backward::{Backward, EntryLosses, Gradients};
+use super::backward::{Backward, EntryLosses, Gradients, Reduction};
 use super::config::{Schedule, TrainConfig};
 use super::init::Moments;
 use super::loss::{LossWeights, NormalLoss, PixelLoss};
@@ -124,6 +124,11 @@ impl Trainer {
     /// Whether the backward uses native float atomics.
     pub fn float_atomics(&self) -> bool {
         self.backward.float_atomics()
+    }
+
+    /// How the backward sums gradients ([`Reduction::Ordered`] with `deterministic`).
+    pub fn reduction(&self) -> Reduction {
+        self.backward.reduction()
     }
 
     /// Records per-stage GPU timestamps from now on (see [`Trainer::stage_times`]).
@@ -287,11 +292,13 @@ impl Trainer {
             if let Some(t) = timing.as_mut() {
                 t.1.mark(cmd, "losses");
             }
+            let tv = &mut self.tv;
+            let scene = &self.scene;
             self.backward.record_timed(
                 cmd,
                 &frame,
                 &stats,
-                &self.scene,
+                scene,
                 cfg.samples,
                 &self.grads,
                 &EntryLosses {
@@ -299,18 +306,23 @@ impl Trainer {
                     lambda_r: cfg.lambda_r / nrender as f32,
                 },
                 timing.as_mut().map(|t| &mut t.1),
+                |cmd, geo_target| {
+                    // TV adds to the density gradients (the grid points', or the
+                    // ordered reduction's voxel corners before their gather).
+                    if lambda_tv > 0.0 {
+                        tv.record(
+                            cmd,
+                            scene.corners.address(),
+                            scene.geo.address(),
+                            geo_target,
+                            scene.voxels,
+                            lambda_tv,
+                        )?;
+                        recorder::barrier(&ctx, cmd);
+                    }
+                    Ok(())
+                },
             )?;
-            if lambda_tv > 0.0 {
-                self.tv.record(
-                    cmd,
-                    self.scene.corners.address(),
-                    self.scene.geo.address(),
-                    self.grads.geo.address(),
-                    self.scene.voxels,
-                    lambda_tv,
-                )?;
-                recorder::barrier(&ctx, cmd);
-            }
             if let Some(t) = timing.as_mut() {
                 t.1.mark(cmd, "backward.tv");
             }

@@ -8,7 +8,7 @@ use svraster::data::Camera;
 use svraster::gpu::Context;
 use svraster::raster::{RenderOptions, Renderer};
 use svraster::scene::{Scene, SceneGpu};
-use svraster::train::backward::{dout, Backward, EntryLosses, Gradients};
+use svraster::train::backward::{dout, Backward, EntryLosses, Gradients, Reduction};
 
 pub struct GpuGrads {
     pub geo: Vec<f32>,
@@ -27,14 +27,30 @@ pub fn gpu_grads(
     k: u32,
     pix: &[PixelWeights],
     spec: &LossSpec,
-    float_atomics: bool,
+    reduction: Reduction,
     chunk: Option<u32>,
 ) -> GpuGrads {
-    gpu_grads_ss(ctx, scene, cam, k, pix, spec, float_atomics, chunk, 1.0)
+    gpu_grads_ss(ctx, scene, cam, k, pix, spec, reduction, chunk, 1.0)
+}
+
+/// The reductions this device runs: native float atomics (where it has them),
+/// compare-and-swap and the ordered (deterministic) one.
+pub fn reductions(ctx: &Context) -> Vec<Reduction> {
+    let mut r = vec![Reduction::CompareSwap, Reduction::Ordered];
+    if ctx.info().float_atomic_add {
+        r.insert(0, Reduction::Atomic);
+    }
+    r
+}
+
+/// The default reduction (float atomics where the device has them).
+pub fn default_reduction(ctx: &Context) -> Reduction {
+    Reduction::choose(ctx, true, false)
 }
 
 /// As [`gpu_grads`], rendering at `ss` times the camera's size (`pix` are the output
-/// pixels' weights; the backward transposes the downsample).
+/// pixels' weights; the backward transposes the downsample). `chunk` sets the entries per
+/// backward dispatch and, for the ordered reduction, the records per gather pass.
 #[allow(clippy::too_many_arguments)]
 pub fn gpu_grads_ss(
     ctx: &Context,
@@ -43,7 +59,7 @@ pub fn gpu_grads_ss(
     k: u32,
     pix: &[PixelWeights],
     spec: &LossSpec,
-    float_atomics: bool,
+    reduction: Reduction,
     chunk: Option<u32>,
     ss: f32,
 ) -> GpuGrads {
@@ -55,9 +71,10 @@ pub fn gpu_grads_ss(
     };
     let stats = r.render_to_device(&gpu, cam, &opts, None).unwrap();
     let frame = r.last_frame().unwrap();
-    let mut b = Backward::new(ctx, float_atomics).unwrap();
+    let mut b = Backward::with_reduction(ctx, reduction).unwrap();
     if let Some(c) = chunk {
         b.set_chunk_size(c);
+        b.set_gather_span(c);
     }
     b.prepare(&frame, gpu.voxels).unwrap();
     let np = pix.len();
@@ -72,7 +89,7 @@ pub fn gpu_grads_ss(
         d[dout::DEPTH * np + p] = w.depth as f32;
     }
     ctx.upload(b.dout().unwrap(), 0, &d).unwrap();
-    let g = Gradients::new(ctx, &gpu).unwrap();
+    let g = Gradients::with_reduction(ctx, &gpu, reduction).unwrap();
     ctx.submit_and_wait(|cmd| {
         b.record(
             cmd,
