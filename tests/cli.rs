@@ -1442,3 +1442,52 @@ fn deterministic_runs_write_identical_checkpoints() {
         a1.len()
     );
 }
+
+/// `bench trade --budget-minutes`: a calibration run sets the iterations (here the least,
+/// 100, for a budget far too small), reported in the log and the rows; the calibration
+/// run is removed.
+#[test]
+fn bench_trade_fits_the_schedule_to_a_time_budget() {
+    let dir = tmp("trade-budget");
+    let data = dir.path().join("data");
+    write_demo(&data, 16, [4, 1, 1], 5);
+    let out = dir.path().join("trade");
+    let (ok, stdout, err) = svraster(&[
+        "bench",
+        "trade",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--downscale",
+        "1",
+        "--max-voxels",
+        "3000",
+        "--set",
+        "grid_level=3",
+        "--vary",
+        "sh_degree=0",
+        "--combine",
+        "0",
+        "--budget-minutes",
+        "0.01",
+        "--json",
+    ]);
+    assert!(ok, "{stdout}\n{err}");
+    assert!(err.contains("s per iteration"), "{err}");
+    assert!(err.contains("more than the budget"), "{err}");
+    let doc: serde_json::Value = serde_json::from_str(stdout.trim()).expect("trade JSON");
+    let rows = doc["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 2);
+    assert!(rows.iter().all(|r| r["iters"] == 100), "{doc}");
+    assert_eq!(doc["iters"], 100);
+    assert!(!out.join("calibration").exists());
+    let (ok, _, err) = svraster(&[
+        "bench",
+        "trade",
+        data.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--budget-minutes=-1",
+    ]);
+    assert!(!ok && err.contains("--budget-minutes"), "{err}");
+}

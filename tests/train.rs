@@ -39,6 +39,51 @@ fn quick(iters: u32) -> TrainConfig {
     cfg
 }
 
+/// The speed modifiers apply to any preset, bare ones to the data format's, and are the
+/// measured combinations (README "Speed ↔ accuracy").
+#[test]
+fn speed_presets_modify_any_preset() {
+    let p = |n: &str| TrainConfig::preset(n).unwrap();
+    let (syn, fwd) = (p("synthetic"), p("forward"));
+    let ft = p("synthetic-fast-train");
+    assert_eq!(
+        (ft.ss, ft.grid_level, ft.sh_degree),
+        (1.0, syn.grid_level - 1, 3)
+    );
+    let fr = p("synthetic-fast-render");
+    assert_eq!(
+        (fr.ss, fr.prune_thres_final, fr.grid_level),
+        (1.0, 0.15, syn.grid_level)
+    );
+    let ft = p("forward-fast-train");
+    assert_eq!(
+        (ft.ss, ft.grid_level, ft.sh_degree),
+        (1.0, fwd.grid_level, 1)
+    );
+    assert_eq!(
+        ft.outside_level, fwd.outside_level,
+        "the rest is the base preset's"
+    );
+    let fr = p("forward-fast-render");
+    assert_eq!((fr.ss, fr.prune_thres_final), (1.0, fwd.prune_thres_final));
+    assert_eq!(
+        serde_json::to_value(p("fast-train")).unwrap(),
+        serde_json::to_value(p("synthetic-fast-train")).unwrap()
+    );
+    assert_eq!(
+        TrainConfig::resolve_preset("fast-render", "real"),
+        "real-fast-render"
+    );
+    assert_eq!(TrainConfig::resolve_preset("object", "real"), "object");
+    for bad in [
+        "nope-fast-train",
+        "synthetic-fast-train-fast-render",
+        "fast",
+    ] {
+        assert!(TrainConfig::preset(bad).is_err(), "{bad}");
+    }
+}
+
 #[test]
 fn schedule_is_fractions_of_the_run() {
     let c = TrainConfig::default();

@@ -89,7 +89,8 @@ pub enum BenchCmd {
     /// a time around the preset. Every variant is trained and evaluated on a held-out
     /// split; writes OUT/trade.md, OUT/trade.json and OUT/trade.png (Pareto fronts marked).
     Trade {
-        /// Blender-format dataset.
+        /// Dataset (any format `svraster train` reads; captures: use --split test, every
+        /// --holdout-th view).
         data: std::path::PathBuf,
         /// Output directory (one run directory per variant).
         #[arg(long, default_value = "trade")]
@@ -127,6 +128,14 @@ pub enum BenchCmd {
         reuse: bool,
         #[arg(long)]
         json: bool,
+        /// With --vary: after the one-factor variants, train up to this many pairwise
+        /// combinations of those on a Pareto front (different knobs; 0: none).
+        #[arg(long, default_value_t = 4)]
+        combine: usize,
+        /// Fit the whole comparison in this many minutes: a 100-iteration calibration run
+        /// of the base configuration sets --iters (a multiple of 100, at least 100).
+        #[arg(long, value_name = "MINUTES")]
+        budget_minutes: Option<f64>,
     },
 }
 
@@ -175,9 +184,11 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             warmup,
             json,
         } => {
-            let preset = preset.unwrap_or_else(|| {
-                super::train::format_preset(svraster::data::detect_format(&data)).into()
-            });
+            let format = super::train::format_preset(svraster::data::detect_format(&data));
+            let preset = match preset {
+                Some(p) => svraster::train::config::TrainConfig::resolve_preset(&p, format),
+                None => format.into(),
+            };
             bench_train(ctx, &data, downscale, &preset, &set, iters, warmup, json)
         }
         BenchCmd::Trade {
@@ -194,9 +205,13 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             seed,
             reuse,
             json,
+            combine,
+            budget_minutes,
         } => super::trade::run(
             ctx,
             &super::trade::TradeArgs {
+                combine,
+                budget_minutes,
                 data,
                 out,
                 downscale,

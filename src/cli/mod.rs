@@ -128,7 +128,9 @@ enum Command {
         /// with --resume).
         #[arg(long)]
         downscale: Option<f64>,
-        /// Configuration preset: synthetic, real, forward, object, mesh or quick (default: the
+        /// Configuration preset: synthetic, real, forward, object, mesh or quick, optionally
+        /// with a speed modifier: `fast-train` or `fast-render` alone (on the data's preset)
+        /// or appended, e.g. real-fast-render (README "Speed ↔ accuracy") (default: the
         /// data's — Blender: synthetic, COLMAP/nerfstudio: real, LLFF: forward, NeuS:
         /// object; with --resume: the run's).
         #[arg(long)]

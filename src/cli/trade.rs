@@ -18,6 +18,7 @@ use super::plot::{save_row, Chart, Point, Series};
 use super::train::{evaluate, run_train, TrainArgs};
 
 /// Arguments of `bench trade`.
+#[derive(Clone)]
 pub struct TradeArgs {
     pub data: PathBuf,
     pub out: PathBuf,
@@ -34,6 +35,12 @@ pub struct TradeArgs {
     /// Keep variants an identical earlier comparison finished (`VARIANT/trade_row.json`).
     pub reuse: bool,
     pub json: bool,
+    /// With --vary: at most this many pairwise combinations of the one-factor variants on
+    /// a Pareto front, trained after them (0: none).
+    pub combine: usize,
+    /// Wall-clock minutes the whole comparison may take: sets `iters` from a timed
+    /// calibration run of the base configuration (None: `iters` as given).
+    pub budget_minutes: Option<f64>,
 }
 
 /// One trained variant.
@@ -68,6 +75,7 @@ pub struct TradeRow {
 }
 
 /// A variant to train: its name, its overrides on top of `--set`, its iterations.
+#[derive(Clone)]
 struct Variant {
     name: String,
     extra: Vec<String>,
@@ -156,6 +164,48 @@ fn variants(a: &TradeArgs) -> anyhow::Result<Vec<Variant>> {
     Ok(v)
 }
 
+/// Pairwise combinations of the one-factor variants on either Pareto front of `rows`
+/// (variants of different knobs, at the same iterations), front variants with the higher
+/// PSNR first, at most `limit`; none that an existing variant already names.
+fn combinations(done: &[Variant], rows: &[TradeRow], limit: usize) -> Vec<Variant> {
+    let mut front: Vec<(&Variant, f64)> = done
+        .iter()
+        .filter(|v| v.extra.len() == 1)
+        .filter_map(|v| {
+            rows.iter()
+                .find(|r| r.variant == v.name && (r.front_train || r.front_render))
+                .map(|r| (v, r.psnr))
+        })
+        .collect();
+    front.sort_by(|a, b| b.1.total_cmp(&a.1));
+    let key = |v: &Variant| {
+        v.extra[0]
+            .split('=')
+            .next()
+            .unwrap_or("")
+            .trim()
+            .to_string()
+    };
+    let mut out: Vec<Variant> = Vec::new();
+    for i in 0..front.len() {
+        for j in i + 1..front.len() {
+            let (a, b) = (front[i].0, front[j].0);
+            if key(a) == key(b) || a.iters != b.iters {
+                continue;
+            }
+            let name = format!("{}+{}", a.name, b.name);
+            if out.len() < limit && !done.iter().any(|d| d.name == name) {
+                out.push(Variant {
+                    name,
+                    extra: vec![a.extra[0].clone(), b.extra[0].clone()],
+                    iters: a.iters,
+                });
+            }
+        }
+    }
+    out
+}
+
 /// Marks the two Pareto fronts: a row is on a front when no other row has a cost at most
 /// its own and a PSNR at least its own, one of the two strictly better.
 fn mark_fronts(rows: &mut [TradeRow]) {
@@ -185,112 +235,58 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
     if a.max_voxels == 0 {
         bail!("--max-voxels must be ≥ 1: every variant trains under the same budget");
     }
-    let variants = variants(a)?;
-    let total = variants.len();
-    let started = std::time::Instant::now();
-    let mut trained_s = Vec::new();
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
+    // A bare speed modifier (`--preset fast-train`) applies to the data's preset.
+    let format = super::train::format_preset(svraster::data::detect_format(&a.data));
+    let resolved = TradeArgs {
+        preset: svraster::train::config::TrainConfig::resolve_preset(&a.preset, format),
+        ..a.clone()
+    };
+    let a = &resolved;
+    let budgeted;
+    let a = match a.budget_minutes {
+        Some(m) => {
+            budgeted = TradeArgs {
+                iters: fit_iters(ctx, a, m)?,
+                budget_minutes: None,
+                ..a.clone()
+            };
+            &budgeted
+        }
+        None => a,
+    };
+    let mut variants = variants(a)?;
+    let mut total = variants.len() + if a.vary.is_empty() { 0 } else { a.combine };
+    let mut clock = Clock {
+        started: std::time::Instant::now(),
+        trained_s: Vec::new(),
+    };
     let mut rows = Vec::new();
-    // The outputs as of the last finished variant (there is always one: `adaptive`).
+    // The outputs as of the last finished variant (there is always one).
     let mut doc = serde_json::Value::Null;
-    for (index, Variant { name, extra, iters }) in variants.into_iter().enumerate() {
-        let run = a.out.join(&name);
-        let mut set = a.set.clone();
-        set.extend(extra);
-        if !set
-            .iter()
-            .any(|kv| kv.trim_start().starts_with("max_voxels"))
-        {
-            set.push(format!("max_voxels={}", a.max_voxels));
-        }
-        // What makes a finished variant reusable: everything its row depends on.
-        let key = serde_json::json!({
-            "data": a.data, "split": a.split, "downscale": a.downscale, "preset": a.preset,
-            "iters": iters, "seed": a.seed, "set": set,
-        });
-        let row_file = run.join("trade_row.json");
-        if a.reuse {
-            if let Some(mut row) = finished_row(&row_file, &key) {
-                eprintln!("== {name} == reusing the finished run in {}", run.display());
-                row.iters = iters; // rows saved before the field existed read 0
-                rows.push(row);
-                doc = write_outputs(ctx, a, &mut rows)?;
-                continue;
-            }
-        }
-        if run.join("config.json").exists() {
-            eprintln!("replacing the previous run in {}", run.display());
-            std::fs::remove_dir_all(&run)
-                .with_context(|| format!("cannot clear {}", run.display()))?;
-        }
-        eprintln!("== {name} ({} of {total}) ==", index + 1);
-        let t_variant = std::time::Instant::now();
-        let summary = run_train(
-            ctx,
-            &TrainArgs {
-                data: a.data.clone(),
-                out: run.clone(),
-                iters: Some(iters),
-                downscale: Some(a.downscale),
-                preset: Some(a.preset.clone()),
-                seed: Some(a.seed),
-                set,
-                resume: false,
-                source: Default::default(),
-            },
-        )?;
-        if summary.interrupted {
-            bail!("interrupted while training {name}");
-        }
-        let scene = checkpoint::load(&run.join("model.safetensors"))?;
-        let rep = evaluate(
-            ctx,
-            &scene,
-            &super::train::Views {
-                data: &a.data,
-                split: &a.split,
-                downscale: a.downscale,
-                source: &Default::default(),
-            },
-            &RenderOptions::for_scene(&scene),
-            false,
-        )?;
-        let cfg = read_config(&run)?;
-        let row = TradeRow {
-            variant: name,
-            layout: cfg["config"]["layout"].as_str().unwrap_or("?").to_string(),
-            max_level: scene.max_level(),
-            voxels: scene.num_voxels(),
-            grid_points: scene.num_grid_points(),
-            peak_device_memory: peak_device_memory(&run)?,
-            psnr: rep.psnr,
-            ssim: rep.ssim,
-            train_s: summary.seconds,
-            ms_per_frame: rep.ms_per_frame,
-            budget_capped: budget_capped(&run)?,
-            front_train: false,
-            front_render: false,
-            iters,
-            run,
-        };
-        let saved = serde_json::json!({ "key": key, "row": row });
-        write(&row_file, serde_json::to_string_pretty(&saved)?.as_bytes())?;
-        rows.push(row);
-        // Every finished variant is on disk at once: a long comparison stopped part-way
-        // keeps the rows it measured.
-        doc = write_outputs(ctx, a, &mut rows)?;
-        trained_s.push(t_variant.elapsed().as_secs_f64());
-        let left = total - index - 1;
-        if left > 0 {
-            let mean = trained_s.iter().sum::<f64>() / trained_s.len() as f64;
+    for (index, v) in variants.clone().into_iter().enumerate() {
+        doc = run_variant(ctx, a, &v, index, &mut total, &mut clock, &mut rows)?;
+    }
+    if !a.vary.is_empty() && a.combine > 0 {
+        let combos = combinations(&variants, &rows, a.combine);
+        total = variants.len() + combos.len();
+        if combos.is_empty() {
+            eprintln!("no combinations: fewer than two knobs have a variant on a Pareto front");
+        } else {
             eprintln!(
-                "{} of {total} variants done in {:.0} min; ETA ~{:.0} min for the {left} left \
-                 (mean of the variants trained so far)",
-                index + 1,
-                started.elapsed().as_secs_f64() / 60.0,
-                mean * left as f64 / 60.0
+                "combining the front's one-factor variants: {}",
+                combos
+                    .iter()
+                    .map(|c| c.name.as_str())
+                    .collect::<Vec<_>>()
+                    .join(", ")
             );
+        }
+        for c in combos {
+            let index = variants.len();
+            variants.push(c.clone());
+            doc = run_variant(ctx, a, &c, index, &mut total, &mut clock, &mut rows)?;
         }
     }
     if a.json {
@@ -300,6 +296,187 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
         println!("chart: {}", a.out.join("trade.png").display());
     }
     Ok(rows)
+}
+
+/// Wall time of the comparison so far, for the ETA.
+struct Clock {
+    started: std::time::Instant,
+    trained_s: Vec<f64>,
+}
+
+/// The iterations at which the whole comparison fits in `minutes`: a calibration run of
+/// the base configuration (`OUT/calibration`, 100 iterations, deleted afterwards) gives
+/// the seconds per iteration including the run's fixed costs (initialisation, the first
+/// adaptive steps, evaluation), which every variant is assumed to take; rounded down to
+/// a multiple of 100, at least 100.
+fn fit_iters(ctx: &Context, a: &TradeArgs, minutes: f64) -> anyhow::Result<u32> {
+    if !(minutes.is_finite() && minutes > 0.0) {
+        bail!("--budget-minutes must be a positive number of minutes, got {minutes}");
+    }
+    let count = variants(a)?.len() + if a.vary.is_empty() { 0 } else { a.combine };
+    let calib = a.out.join("calibration");
+    if calib.exists() {
+        std::fs::remove_dir_all(&calib)
+            .with_context(|| format!("cannot clear {}", calib.display()))?;
+    }
+    const CALIB_ITERS: u32 = 100;
+    eprintln!(
+        "--budget-minutes {minutes}: timing {CALIB_ITERS} iterations of the base configuration \
+         to fit {count} variants …"
+    );
+    let t = std::time::Instant::now();
+    let mut set = a.set.clone();
+    set.push(format!("max_voxels={}", a.max_voxels));
+    let summary = run_train(
+        ctx,
+        &TrainArgs {
+            data: a.data.clone(),
+            out: calib.clone(),
+            iters: Some(CALIB_ITERS),
+            downscale: Some(a.downscale),
+            preset: Some(a.preset.clone()),
+            seed: Some(a.seed),
+            set,
+            resume: false,
+            source: Default::default(),
+        },
+    )?;
+    if summary.interrupted {
+        bail!("interrupted during the calibration run");
+    }
+    let per_iter = t.elapsed().as_secs_f64() / f64::from(CALIB_ITERS);
+    let _ = std::fs::remove_dir_all(&calib);
+    let left = minutes * 60.0 - t.elapsed().as_secs_f64();
+    let fit = left / count as f64 / per_iter;
+    let iters = ((fit / 100.0).floor() as u32 * 100).max(100);
+    eprintln!(
+        "{:.2} s per iteration (with the fixed costs): {count} variants × {iters} iterations \
+         ≈ {:.0} min{}",
+        per_iter,
+        count as f64 * f64::from(iters) * per_iter / 60.0,
+        if fit < 100.0 {
+            " — more than the budget: 100 iterations is the least this comparison trains"
+        } else {
+            ""
+        }
+    );
+    Ok(iters)
+}
+
+/// Trains (or reuses) one variant, appends its row and rewrites the outputs; returns the
+/// JSON document.
+fn run_variant(
+    ctx: &Context,
+    a: &TradeArgs,
+    v: &Variant,
+    index: usize,
+    total: &mut usize,
+    clock: &mut Clock,
+    rows: &mut Vec<TradeRow>,
+) -> anyhow::Result<serde_json::Value> {
+    let Variant { name, extra, iters } = v.clone();
+    let run = a.out.join(&name);
+    let mut set = a.set.clone();
+    set.extend(extra);
+    if !set
+        .iter()
+        .any(|kv| kv.trim_start().starts_with("max_voxels"))
+    {
+        set.push(format!("max_voxels={}", a.max_voxels));
+    }
+    // What makes a finished variant reusable: everything its row depends on.
+    let key = serde_json::json!({
+        "data": a.data, "split": a.split, "downscale": a.downscale, "preset": a.preset,
+        "iters": iters, "seed": a.seed, "set": set,
+    });
+    let row_file = run.join("trade_row.json");
+    if a.reuse {
+        if let Some(mut row) = finished_row(&row_file, &key) {
+            eprintln!("== {name} == reusing the finished run in {}", run.display());
+            row.iters = iters; // rows saved before the field existed read 0
+            rows.push(row);
+            return write_outputs(ctx, a, rows);
+        }
+    }
+    if run.join("config.json").exists() {
+        eprintln!("replacing the previous run in {}", run.display());
+        std::fs::remove_dir_all(&run).with_context(|| format!("cannot clear {}", run.display()))?;
+    }
+    eprintln!("== {name} ({} of {}) ==", index + 1, *total);
+    let t_variant = std::time::Instant::now();
+    let summary = run_train(
+        ctx,
+        &TrainArgs {
+            data: a.data.clone(),
+            out: run.clone(),
+            iters: Some(iters),
+            downscale: Some(a.downscale),
+            preset: Some(a.preset.clone()),
+            seed: Some(a.seed),
+            set,
+            resume: false,
+            source: Default::default(),
+        },
+    )?;
+    if summary.interrupted {
+        bail!("interrupted while training {name}");
+    }
+    let scene = checkpoint::load(&run.join("model.safetensors"))?;
+    let rep = evaluate(
+        ctx,
+        &scene,
+        &super::train::Views {
+            data: &a.data,
+            split: &a.split,
+            downscale: a.downscale,
+            source: &Default::default(),
+        },
+        &RenderOptions::for_scene(&scene),
+        false,
+    )?;
+    let cfg = read_config(&run)?;
+    let row = TradeRow {
+        variant: name,
+        layout: cfg["config"]["layout"].as_str().unwrap_or("?").to_string(),
+        max_level: scene.max_level(),
+        voxels: scene.num_voxels(),
+        grid_points: scene.num_grid_points(),
+        peak_device_memory: peak_device_memory(&run)?,
+        psnr: rep.psnr,
+        ssim: rep.ssim,
+        train_s: summary.seconds,
+        ms_per_frame: rep.ms_per_frame,
+        budget_capped: budget_capped(&run)?,
+        front_train: false,
+        front_render: false,
+        iters,
+        run,
+    };
+    let saved = serde_json::json!({ "key": key, "row": row });
+    write(&row_file, serde_json::to_string_pretty(&saved)?.as_bytes())?;
+    rows.push(row);
+    // Every finished variant is on disk at once: a long comparison stopped part-way
+    // keeps the rows it measured.
+    let doc = write_outputs(ctx, a, rows)?;
+    clock.trained_s.push(t_variant.elapsed().as_secs_f64());
+    let left = total.saturating_sub(index + 1);
+    if left > 0 {
+        let mean = clock.trained_s.iter().sum::<f64>() / clock.trained_s.len() as f64;
+        eprintln!(
+            "{} of {} variants done in {:.0} min; ETA ~{:.0} min for the {left} left \
+             (mean of the variants trained so far{})",
+            index + 1,
+            *total,
+            clock.started.elapsed().as_secs_f64() / 60.0,
+            mean * left as f64 / 60.0,
+            if a.combine > 0 && !a.vary.is_empty() {
+                "; combinations counted at their most"
+            } else {
+                ""
+            }
+        );
+    }
+    Ok(doc)
 }
 
 /// Writes `trade.md`, `trade.json` and `trade.png` for the rows so far; returns the JSON.
@@ -524,6 +701,61 @@ mod tests {
             iters: 1,
             run: PathBuf::new(),
         }
+    }
+
+    fn variant(name: &str) -> Variant {
+        Variant {
+            name: name.into(),
+            extra: if name == "base" {
+                Vec::new()
+            } else {
+                vec![name.into()]
+            },
+            iters: 1,
+        }
+    }
+
+    /// Pairs of front variants of different knobs, best PSNR first, within the limit;
+    /// off-front variants, `base` and two values of one knob are never combined.
+    #[test]
+    fn combinations_pair_front_variants_of_different_knobs() {
+        let done: Vec<Variant> = [
+            "base",
+            "ss=1",
+            "ss=1.1",
+            "samples=3",
+            "sh_degree=0",
+            "grid_level=5",
+        ]
+        .iter()
+        .map(|n| variant(n))
+        .collect();
+        let mut rows = vec![
+            row("base", 100.0, 10.0, 30.0),
+            row("ss=1", 60.0, 9.0, 30.5),   // front (dominates base)
+            row("ss=1.1", 25.0, 9.5, 29.0), // front (train)
+            row("samples=3", 200.0, 20.0, 29.0), // dominated
+            row("sh_degree=0", 20.0, 3.0, 28.0), // front
+            row("grid_level=5", 30.0, 4.0, 29.5), // front
+        ];
+        mark_fronts(&mut rows);
+        assert!(!rows[3].front_train && !rows[3].front_render);
+        let names = |c: Vec<Variant>| c.into_iter().map(|v| v.name).collect::<Vec<_>>();
+        let all = names(combinations(&done, &rows, 10));
+        assert_eq!(
+            all,
+            [
+                "ss=1+grid_level=5",
+                "ss=1+sh_degree=0",
+                "grid_level=5+ss=1.1",
+                "grid_level=5+sh_degree=0",
+                "ss=1.1+sh_degree=0",
+            ]
+        );
+        assert_eq!(names(combinations(&done, &rows, 2)).len(), 2);
+        assert!(combinations(&done, &rows, 0).is_empty());
+        let c = &combinations(&done, &rows, 1)[0];
+        assert_eq!(c.extra, ["ss=1", "grid_level=5"]);
     }
 
     #[test]

@@ -38,14 +38,17 @@ pub struct TrainArgs {
 /// The preset of a new run: `--preset`, else the one the data's format calls for
 /// (Blender → synthetic, COLMAP → real).
 pub fn default_preset(a: &TrainArgs) -> String {
-    a.preset.clone().unwrap_or_else(|| {
+    let format = || {
         format_preset(
             a.source
                 .format
                 .unwrap_or_else(|| data::detect_format(&a.data)),
         )
-        .into()
-    })
+    };
+    match &a.preset {
+        Some(p) => TrainConfig::resolve_preset(p, format()),
+        None => format().into(),
+    }
 }
 
 /// The preset a data format calls for.
@@ -141,8 +144,9 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             );
         }
         let run_preset = v["preset"].as_str().unwrap_or("synthetic").to_string();
-        if let Some(p) = &a.preset {
-            if *p != run_preset {
+        if a.preset.is_some() {
+            let p = default_preset(a);
+            if p != run_preset {
                 bail!(
                     "--resume: the run in {} was started with --preset {run_preset}, not {p}; drop --preset (or start a new --out)",
                     run.display()
