@@ -208,7 +208,7 @@ impl Tv {
 
     /// The variant for `reduction`: with [`Reduction::Ordered`], [`Tv::record`]'s `grad`
     /// is the backward's per-voxel-corner buffer (8 floats per voxel), not the
-    /// grid-point gradients (see [`super::Backward::record_timed`]).
+    /// grid-point gradients (see [`super::backward::Backward::record_timed`]).
     pub fn with_reduction(ctx: &Context, reduction: Reduction) -> Result<Tv> {
         let src = match reduction {
             Reduction::Atomic if ctx.info().float_atomic_add => &kernels::TRAIN_TV,
