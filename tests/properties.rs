@@ -298,33 +298,40 @@ fn gradients_match_the_reference_on_drawn_scenes() {
     // Cases compared per density kind [mixed, empty, opaque] and per view kind.
     let kinds = RefCell::new(([0usize; 3], [0usize; 4]));
     let (pixels, excluded) = (Cell::new(0usize), Cell::new(0usize));
-    let grazing_cases = Cell::new(0usize);
+    let limited = Cell::new(0usize);
     let result = runner(32).run(&cases(24, 20), |c| {
         let (scene, cam) = build(&c);
-        // A ray grazing a dense voxel anywhere: the case is not compared. (Zeroing only
-        // those pixels' weights leaves discrepancies of up to 0.1 relative in cases with
-        // the eye on boundary planes and clamped-opaque voxels — under investigation,
-        // see the README's Numerical limits.)
-        if (0..cam.height)
-            .any(|py| (0..cam.width).any(|px| grazes_a_dense_voxel(&scene, &cam, px, py)))
-        {
-            grazing_cases.set(grazing_cases.get() + 1);
-            return Ok(());
-        }
         let mut rng = Rng(c.seed ^ 0x9e37_79b9_7f4a_7c15);
         let np = (cam.width * cam.height) as usize;
         let mut pix = random_weights(&mut rng, np, [true; 5]);
-        let undecidable = undecidable_pixels(&scene, &cam, c.samples);
-        for (w, &u) in pix.iter_mut().zip(&undecidable) {
+        // Pixels whose f32 and f64 frames may legitimately differ (undecidable
+        // thresholds, rays grazing a dense voxel) get zero loss weights. The per-point
+        // losses (distortion, per-point RGB) act on every pixel whatever its weights, so
+        // a case with such a pixel is compared with them off.
+        let mut excluded_px = undecidable_pixels(&scene, &cam, c.samples);
+        for (p, x) in excluded_px.iter_mut().enumerate() {
+            let (px, py) = (p as u32 % cam.width, p as u32 / cam.width);
+            *x = *x || grazes_a_dense_voxel(&scene, &cam, px, py);
+        }
+        for (w, &u) in pix.iter_mut().zip(&excluded_px) {
             if u {
                 *w = Default::default();
             }
         }
         pixels.set(pixels.get() + np);
-        excluded.set(excluded.get() + undecidable.iter().filter(|&&u| u).count());
-        let spec = LossSpec {
-            lambda_dist: rng.range(0.1, 2.0),
-            lambda_r: rng.range(0.1, 2.0),
+        let n_excluded = excluded_px.iter().filter(|&&u| u).count();
+        excluded.set(excluded.get() + n_excluded);
+        let spec = if n_excluded > 0 {
+            limited.set(limited.get() + 1);
+            LossSpec {
+                lambda_dist: 0.0,
+                lambda_r: 0.0,
+            }
+        } else {
+            LossSpec {
+                lambda_dist: rng.range(0.1, 2.0),
+                lambda_r: rng.range(0.1, 2.0),
+            }
         };
         {
             let mut k = kinds.borrow_mut();
@@ -351,14 +358,17 @@ fn gradients_match_the_reference_on_drawn_scenes() {
     }
     let (densities, views) = kinds.into_inner();
     let (pixels, excluded) = (pixels.get(), excluded.get());
-    let grazing_cases = grazing_cases.get();
+    let limited = limited.get();
     println!(
         "compared: densities {densities:?}, views {views:?}; {excluded} of {pixels} pixels \
-         undecidable (weights zeroed); {grazing_cases} cases with a grazing ray not compared"
+         undecidable or grazing a dense voxel (weights zeroed); {limited} of 32 cases \
+         compared without the per-point losses"
     );
+    // Most cases keep the per-point losses (a case without them still compares the
+    // colour, alpha, depth and normal terms).
     assert!(
-        grazing_cases * 4 < 32,
-        "{grazing_cases} of 32 cases graze a dense voxel"
+        limited * 2 < 32,
+        "{limited} of 32 cases without the per-point losses"
     );
     assert!(
         densities.iter().chain(&views).all(|&n| n > 0),
