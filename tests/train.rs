@@ -78,6 +78,8 @@ fn speed_presets_modify_any_preset() {
     for bad in [
         "nope-fast-train",
         "synthetic-fast-train-fast-render",
+        "fast-render-fast-train",
+        "fast-train-fast-render",
         "fast",
     ] {
         assert!(TrainConfig::preset(bad).is_err(), "{bad}");

@@ -373,6 +373,12 @@ pub fn run() -> anyhow::Result<()> {
                 set.push(format!("max_voxels={n}"));
             }
             if deterministic {
+                if resume {
+                    anyhow::bail!(
+                        "--deterministic: a resumed run keeps the setting it was started with \
+                         (RUN/config.json); drop --deterministic"
+                    );
+                }
                 set.push("deterministic=true".into());
             }
             let s = train::run_train(

@@ -269,7 +269,24 @@ pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
         doc = run_variant(ctx, a, &v, index, &mut total, &mut clock, &mut rows)?;
     }
     if !a.vary.is_empty() && a.combine > 0 {
-        let combos = combinations(&variants, &rows, a.combine);
+        // A pair of knobs that were valid alone may not be together: skip it.
+        let combos: Vec<Variant> = combinations(&variants, &rows, a.combine)
+            .into_iter()
+            .filter(|c| {
+                let ok =
+                    svraster::train::config::TrainConfig::preset(&a.preset).is_ok_and(|mut cfg| {
+                        a.set.iter().chain(&c.extra).all(|kv| cfg.set(kv).is_ok())
+                            && cfg.validate().is_ok()
+                    });
+                if !ok {
+                    eprintln!(
+                        "skipping the combination {}: not a valid configuration",
+                        c.name
+                    );
+                }
+                ok
+            })
+            .collect();
         total = variants.len() + combos.len();
         if combos.is_empty() {
             eprintln!("no combinations: fewer than two knobs have a variant on a Pareto front");
@@ -307,8 +324,9 @@ struct Clock {
 /// The iterations at which the whole comparison fits in `minutes`: a calibration run of
 /// the base configuration (`OUT/calibration`, 100 iterations, deleted afterwards) gives
 /// the seconds per iteration including the run's fixed costs (initialisation, the first
-/// adaptive steps, evaluation), which every variant is assumed to take; rounded down to
-/// a multiple of 100, at least 100.
+/// adaptive steps; not the evaluation of each variant, which comes on top), which every
+/// variant is assumed to take; rounded down to a multiple of 100, at least 100.
+/// `--vary iters=N` variants keep their N.
 fn fit_iters(ctx: &Context, a: &TradeArgs, minutes: f64) -> anyhow::Result<u32> {
     if !(minutes.is_finite() && minutes > 0.0) {
         bail!("--budget-minutes must be a positive number of minutes, got {minutes}");
@@ -326,7 +344,12 @@ fn fit_iters(ctx: &Context, a: &TradeArgs, minutes: f64) -> anyhow::Result<u32> 
     );
     let t = std::time::Instant::now();
     let mut set = a.set.clone();
-    set.push(format!("max_voxels={}", a.max_voxels));
+    if !set
+        .iter()
+        .any(|kv| kv.trim_start().starts_with("max_voxels"))
+    {
+        set.push(format!("max_voxels={}", a.max_voxels));
+    }
     let summary = run_train(
         ctx,
         &TrainArgs {
@@ -359,6 +382,10 @@ fn fit_iters(ctx: &Context, a: &TradeArgs, minutes: f64) -> anyhow::Result<u32> 
         } else {
             ""
         }
+    );
+    eprintln!(
+        "(to continue this comparison later, pass --iters {iters} --reuse instead of \
+         --budget-minutes: a new calibration may choose other iterations)"
     );
     Ok(iters)
 }

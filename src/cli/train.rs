@@ -144,8 +144,11 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             );
         }
         let run_preset = v["preset"].as_str().unwrap_or("synthetic").to_string();
-        if a.preset.is_some() {
-            let p = default_preset(a);
+        if let Some(p) = &a.preset {
+            let format = run_source
+                .format
+                .unwrap_or_else(|| data::detect_format(&a.data));
+            let p = TrainConfig::resolve_preset(p, format_preset(format));
             if p != run_preset {
                 bail!(
                     "--resume: the run in {} was started with --preset {run_preset}, not {p}; drop --preset (or start a new --out)",

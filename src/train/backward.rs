@@ -414,11 +414,13 @@ impl Backward {
             voxel: Kernel::new(ctx, v)?,
             reduction,
             ordered,
-            // The ordered walk adds no loops to the atomic one but a turn per subgroup
-            // and batch (32 per 256 entries on 8-lane subgroups): the atomic chunk.
+            // The ordered walk adds a turn per subgroup and batch (32 per 256 entries on
+            // 8-lane subgroups); where a driver runs a skipped turn's loops with every
+            // lane masked off (llvmpipe without real branches) each turn costs a few
+            // loop iterations more, so it keeps the compare-and-swap chunk's margin.
             chunk_size: ctx
                 .info()
-                .backward_chunk_entries(reduction != Reduction::CompareSwap),
+                .backward_chunk_entries(reduction == Reduction::Atomic),
             gather_span: if ctx.info().loop_limit() {
                 16384
             } else {
@@ -594,7 +596,8 @@ impl Backward {
         }
         recorder::zero(&ctx, cmd, self.vgrad.get());
         if points.is_some() {
-            recorder::zero(&ctx, cmd, self.records.get());
+            let used = u64::from(stats.entries_used).max(1) * VG_STRIDE * 4;
+            recorder::fill(&ctx, cmd, self.records.get(), 0, used, 0);
         } else {
             recorder::zero(&ctx, cmd, &grads.geo);
         }

@@ -339,7 +339,10 @@ impl TrainConfig {
                 return Self::preset(&format!("synthetic-{suffix}"));
             }
             if let Some(base) = name.strip_suffix(&format!("-{suffix}")) {
-                if base.ends_with("-fast-train") || base.ends_with("-fast-render") {
+                if ["fast-train", "fast-render"]
+                    .iter()
+                    .any(|m| base == *m || base.ends_with(&format!("-{m}")))
+                {
                     return Err(Error::Invalid(format!(
                         "preset {name:?}: one speed modifier at a time"
                     )));
