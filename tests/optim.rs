@@ -552,6 +552,34 @@ struct TvErrors {
     grad: f64,
 }
 
+/// Records the GPU TV of `layout` over the gradient buffer `grad0` (per grid point, or per
+/// voxel corner for the ordered variant); returns its value and the buffer after.
+fn run_tv(
+    ctx: &Context,
+    tv: &mut Tv,
+    layout: &Layout,
+    geo: &[f32],
+    grad0: &[f32],
+    weight: f32,
+) -> (f64, Vec<f32>) {
+    let voxels = (layout.corners.len() / 8) as u32;
+    let corners_b = ctx.buffer_from("test.corners", &layout.corners).unwrap();
+    let geo_b = ctx.buffer_from("test.geo", geo).unwrap();
+    let grad_b = ctx.buffer_from("test.grad", grad0).unwrap();
+    ctx.submit_and_wait(|cmd| {
+        tv.record(
+            cmd,
+            corners_b.address(),
+            geo_b.address(),
+            grad_b.address(),
+            voxels,
+            weight,
+        )
+    })
+    .unwrap();
+    (tv.read_value().unwrap(), ctx.download_all(&grad_b).unwrap())
+}
+
 /// Runs the GPU TV (weight, initial gradient contents) and compares with the reference.
 fn check_tv(
     ctx: &Context,
@@ -564,7 +592,6 @@ fn check_tv(
     if tv.reduction() == Reduction::Ordered {
         return check_tv_ordered(ctx, tv, layout, geo, weight, rng);
     }
-    let voxels = (layout.corners.len() / 8) as u32;
     let grad0: Vec<f32> = (0..layout.points)
         .map(|i| {
             if i % 3 == 0 {
@@ -574,23 +601,7 @@ fn check_tv(
             }
         })
         .collect();
-    let corners_b = ctx.buffer_from("test.corners", &layout.corners).unwrap();
-    let geo_b = ctx.buffer_from("test.geo", geo).unwrap();
-    let grad_b = ctx.buffer_from("test.grad", &grad0).unwrap();
-    ctx.submit_and_wait(|cmd| {
-        tv.record(
-            cmd,
-            corners_b.address(),
-            geo_b.address(),
-            grad_b.address(),
-            voxels,
-            weight,
-        )
-    })
-    .unwrap();
-    let value = tv.read_value().unwrap();
-    let grad: Vec<f32> = ctx.download_all(&grad_b).unwrap();
-
+    let (value, grad) = run_tv(ctx, tv, layout, geo, &grad0, weight);
     let geo64: Vec<f64> = geo.iter().map(|&g| f64::from(g)).collect();
     let l_ref = ref_tv_value(&layout.corners, &geo64);
     let (g_ref, scale, adds) = ref_tv_grad(&layout.corners, &geo64);
@@ -634,7 +645,6 @@ fn check_tv_ordered(
     weight: f32,
     rng: &mut Rng,
 ) -> TvErrors {
-    let voxels = (layout.corners.len() / 8) as u32;
     let grad0: Vec<f32> = (0..layout.corners.len())
         .map(|i| {
             if i % 3 == 0 {
@@ -644,22 +654,7 @@ fn check_tv_ordered(
             }
         })
         .collect();
-    let corners_b = ctx.buffer_from("test.corners", &layout.corners).unwrap();
-    let geo_b = ctx.buffer_from("test.geo", geo).unwrap();
-    let grad_b = ctx.buffer_from("test.vcorner", &grad0).unwrap();
-    ctx.submit_and_wait(|cmd| {
-        tv.record(
-            cmd,
-            corners_b.address(),
-            geo_b.address(),
-            grad_b.address(),
-            voxels,
-            weight,
-        )
-    })
-    .unwrap();
-    let value = tv.read_value().unwrap();
-    let grad: Vec<f32> = ctx.download_all(&grad_b).unwrap();
+    let (value, grad) = run_tv(ctx, tv, layout, geo, &grad0, weight);
     let geo64: Vec<f64> = geo.iter().map(|&g| f64::from(g)).collect();
     let l_ref = ref_tv_value(&layout.corners, &geo64);
     let e_value = (value - l_ref).abs() / l_ref.max(f64::MIN_POSITIVE);

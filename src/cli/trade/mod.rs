@@ -14,8 +14,10 @@ use svraster::gpu::Context;
 use svraster::raster::RenderOptions;
 use svraster::scene::checkpoint;
 
-use super::plot::{save_row, Chart, Point, Series};
 use super::train::{evaluate, run_train, TrainArgs};
+
+mod report;
+use report::{budget_capped, peak_device_memory, read_config, table, write, write_outputs};
 
 /// Arguments of `bench trade`.
 #[derive(Clone)]
@@ -41,6 +43,46 @@ pub struct TradeArgs {
     /// Wall-clock minutes the whole comparison may take: sets `iters` from a timed
     /// calibration run of the base configuration (None: `iters` as given).
     pub budget_minutes: Option<f64>,
+}
+
+impl TradeArgs {
+    /// `--set` plus a variant's `extra` overrides, with the comparison's voxel budget
+    /// unless they set one.
+    fn overrides(&self, extra: &[String]) -> Vec<String> {
+        let mut set = self.set.clone();
+        set.extend_from_slice(extra);
+        if !set
+            .iter()
+            .any(|kv| kv.trim_start().starts_with("max_voxels"))
+        {
+            set.push(format!("max_voxels={}", self.max_voxels));
+        }
+        set
+    }
+
+    /// Trains a new run in `out` on the comparison's data, downscale, preset and seed.
+    fn train(
+        &self,
+        ctx: &Context,
+        out: &Path,
+        iters: u32,
+        set: Vec<String>,
+    ) -> anyhow::Result<super::train::RunSummary> {
+        run_train(
+            ctx,
+            &TrainArgs {
+                data: self.data.clone(),
+                out: out.to_path_buf(),
+                iters: Some(iters),
+                downscale: Some(self.downscale),
+                preset: Some(self.preset.clone()),
+                seed: Some(self.seed),
+                set,
+                resume: false,
+                source: Default::default(),
+            },
+        )
+    }
 }
 
 /// One trained variant.
@@ -206,30 +248,6 @@ fn combinations(done: &[Variant], rows: &[TradeRow], limit: usize) -> Vec<Varian
     out
 }
 
-/// Marks the two Pareto fronts: a row is on a front when no other row has a cost at most
-/// its own and a PSNR at least its own, one of the two strictly better.
-fn mark_fronts(rows: &mut [TradeRow]) {
-    let on_front = |rows: &[TradeRow], i: usize, cost: &dyn Fn(&TradeRow) -> f64| {
-        let r = &rows[i];
-        !rows.iter().enumerate().any(|(j, o)| {
-            j != i
-                && cost(o) <= cost(r)
-                && o.psnr >= r.psnr
-                && (cost(o) < cost(r) || o.psnr > r.psnr)
-        })
-    };
-    let train: Vec<bool> = (0..rows.len())
-        .map(|i| on_front(rows, i, &|r| r.train_s))
-        .collect();
-    let render: Vec<bool> = (0..rows.len())
-        .map(|i| on_front(rows, i, &|r| r.ms_per_frame))
-        .collect();
-    for (i, r) in rows.iter_mut().enumerate() {
-        r.front_train = train[i];
-        r.front_render = render[i];
-    }
-}
-
 /// Runs every variant and writes `OUT/trade.json`, `OUT/trade.md` and `OUT/trade.png`.
 pub fn run(ctx: &Context, a: &TradeArgs) -> anyhow::Result<Vec<TradeRow>> {
     if a.max_voxels == 0 {
@@ -343,27 +361,7 @@ fn fit_iters(ctx: &Context, a: &TradeArgs, minutes: f64) -> anyhow::Result<u32> 
          to fit {count} variants …"
     );
     let t = std::time::Instant::now();
-    let mut set = a.set.clone();
-    if !set
-        .iter()
-        .any(|kv| kv.trim_start().starts_with("max_voxels"))
-    {
-        set.push(format!("max_voxels={}", a.max_voxels));
-    }
-    let summary = run_train(
-        ctx,
-        &TrainArgs {
-            data: a.data.clone(),
-            out: calib.clone(),
-            iters: Some(CALIB_ITERS),
-            downscale: Some(a.downscale),
-            preset: Some(a.preset.clone()),
-            seed: Some(a.seed),
-            set,
-            resume: false,
-            source: Default::default(),
-        },
-    )?;
+    let summary = a.train(ctx, &calib, CALIB_ITERS, a.overrides(&[]))?;
     if summary.interrupted {
         bail!("interrupted during the calibration run");
     }
@@ -403,14 +401,7 @@ fn run_variant(
 ) -> anyhow::Result<serde_json::Value> {
     let Variant { name, extra, iters } = v.clone();
     let run = a.out.join(&name);
-    let mut set = a.set.clone();
-    set.extend(extra);
-    if !set
-        .iter()
-        .any(|kv| kv.trim_start().starts_with("max_voxels"))
-    {
-        set.push(format!("max_voxels={}", a.max_voxels));
-    }
+    let set = a.overrides(&extra);
     // What makes a finished variant reusable: everything its row depends on.
     let key = serde_json::json!({
         "data": a.data, "split": a.split, "downscale": a.downscale, "preset": a.preset,
@@ -431,20 +422,7 @@ fn run_variant(
     }
     eprintln!("== {name} ({} of {}) ==", index + 1, *total);
     let t_variant = std::time::Instant::now();
-    let summary = run_train(
-        ctx,
-        &TrainArgs {
-            data: a.data.clone(),
-            out: run.clone(),
-            iters: Some(iters),
-            downscale: Some(a.downscale),
-            preset: Some(a.preset.clone()),
-            seed: Some(a.seed),
-            set,
-            resume: false,
-            source: Default::default(),
-        },
-    )?;
+    let summary = a.train(ctx, &run, iters, set)?;
     if summary.interrupted {
         bail!("interrupted while training {name}");
     }
@@ -506,36 +484,6 @@ fn run_variant(
     Ok(doc)
 }
 
-/// Writes `trade.md`, `trade.json` and `trade.png` for the rows so far; returns the JSON.
-fn write_outputs(
-    ctx: &Context,
-    a: &TradeArgs,
-    rows: &mut [TradeRow],
-) -> anyhow::Result<serde_json::Value> {
-    mark_fronts(rows);
-    let rows = &*rows;
-    let table = table(ctx, a, rows);
-    write(&a.out.join("trade.md"), table.as_bytes())?;
-    let doc = serde_json::json!({
-        "device": ctx.info().name,
-        "data": a.data,
-        "downscale": a.downscale,
-        "preset": a.preset,
-        "iters": a.iters,
-        "max_voxels": a.max_voxels,
-        "split": a.split,
-        "set": a.set,
-        "vary": a.vary,
-        "rows": rows,
-    });
-    write(
-        &a.out.join("trade.json"),
-        serde_json::to_string_pretty(&doc)?.as_bytes(),
-    )?;
-    save_row(&charts(rows, &a.split), &a.out.join("trade.png"), 640, 480)?;
-    Ok(doc)
-}
-
 /// The row an earlier identical comparison saved for this variant, if its model is
 /// still there; anything else (no file, another key, unreadable) means train again.
 fn finished_row(row_file: &Path, key: &serde_json::Value) -> Option<TradeRow> {
@@ -548,166 +496,9 @@ fn finished_row(row_file: &Path, key: &serde_json::Value) -> Option<TradeRow> {
     row.run.join("model.safetensors").exists().then_some(row)
 }
 
-fn read_config(run: &Path) -> anyhow::Result<serde_json::Value> {
-    let p = run.join("config.json");
-    let text =
-        std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{} is not JSON", p.display()))
-}
-
-/// The largest `device_memory` any line of a run's stats.jsonl records.
-fn peak_device_memory(run: &Path) -> anyhow::Result<u64> {
-    let p = run.join("stats.jsonl");
-    let text =
-        std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
-    let mut peak = 0;
-    for line in text.lines() {
-        let v: serde_json::Value =
-            serde_json::from_str(line).with_context(|| format!("{} is not JSON", p.display()))?;
-        let m = v
-            .get("adapt")
-            .unwrap_or(&v)
-            .get("device_memory")
-            .and_then(|m| m.as_u64());
-        peak = peak.max(m.unwrap_or(0));
-    }
-    Ok(peak)
-}
-
-/// Whether any adaptive step of a run's stats.jsonl reports the voxel budget reached.
-fn budget_capped(run: &Path) -> anyhow::Result<bool> {
-    let p = run.join("stats.jsonl");
-    let text =
-        std::fs::read_to_string(&p).with_context(|| format!("cannot read {}", p.display()))?;
-    Ok(text.lines().any(|l| {
-        serde_json::from_str::<serde_json::Value>(l)
-            .ok()
-            .and_then(|v| v["adapt"]["budget_reached"].as_bool())
-            .unwrap_or(false)
-    }))
-}
-
-fn write(path: &Path, bytes: &[u8]) -> anyhow::Result<()> {
-    Ok(svraster::fsio::write_atomic(path, bytes)?)
-}
-
-/// The markdown table of the rows.
-fn table(ctx: &Context, a: &TradeArgs, rows: &[TradeRow]) -> String {
-    let mut s = format!(
-        "{} trade on {} ({}, downscale {}, {} iterations, preset {}, budget {} voxels, {} \
-         split{})\n\n",
-        if a.vary.is_empty() {
-            "voxel layout"
-        } else {
-            "speed/accuracy"
-        },
-        ctx.info().name,
-        a.data.display(),
-        a.downscale,
-        a.iters,
-        a.preset,
-        a.max_voxels,
-        a.split,
-        if a.set.is_empty() {
-            String::new()
-        } else {
-            format!(", --set {}", a.set.join(" "))
-        }
-    );
-    s += "| variant | voxels | grid points | max level | peak device memory | PSNR | SSIM | \
-          train | ms/frame | Pareto front |\n";
-    s += "|---|---|---|---|---|---|---|---|---|---|\n";
-    for r in rows {
-        let name = if r.budget_capped {
-            format!(
-                "{} (capped by the budget at level {})",
-                r.variant, r.max_level
-            )
-        } else {
-            r.variant.clone()
-        };
-        let front = match (r.front_train, r.front_render) {
-            (true, true) => "**train, render**",
-            (true, false) => "**train**",
-            (false, true) => "**render**",
-            (false, false) => "",
-        };
-        s += &format!(
-            "| {} | {} | {} | {} | {:.0} MiB | {:.2} | {:.4} | {:.0} s | {:.1} | {} |\n",
-            name,
-            r.voxels,
-            r.grid_points,
-            r.max_level,
-            r.peak_device_memory as f64 / (1u64 << 20) as f64,
-            r.psnr,
-            r.ssim,
-            r.train_s,
-            r.ms_per_frame,
-            front
-        );
-    }
-    s += "\nPareto front: no other variant is as fast (training, or per frame) and at least as \
-          accurate, one of the two strictly.\n";
-    s
-}
-
-/// PSNR against training time, frame time and voxel count; one series per layout.
-fn charts(rows: &[TradeRow], split: &str) -> Vec<Chart> {
-    let series = |x: &dyn Fn(&TradeRow) -> f64, front: &dyn Fn(&TradeRow) -> bool| -> Vec<Series> {
-        let mut out: Vec<Series> = Vec::new();
-        for layout in ["adaptive", "uniform", "fixed"] {
-            let points: Vec<Point> = rows
-                .iter()
-                .filter(|r| r.layout == layout)
-                .map(|r| Point::labeled(x(r), r.psnr, r.variant.clone()))
-                .collect();
-            if !points.is_empty() {
-                out.push(Series::scatter(layout, points));
-            }
-        }
-        // Last, so the layouts keep their colours from chart to chart.
-        let f: Vec<Point> = rows
-            .iter()
-            .filter(|r| front(r))
-            .map(|r| Point::new(x(r), r.psnr))
-            .collect();
-        if f.len() > 1 {
-            out.push(Series::new("Pareto front", f));
-        }
-        out
-    };
-    let y = format!("{split} PSNR (dB)");
-    vec![
-        Chart {
-            title: "quality vs training time".into(),
-            x_label: "training time (s)".into(),
-            y_label: y.clone(),
-            series: series(&|r| r.train_s, &|r| r.front_train),
-            markers: true,
-            ..Default::default()
-        },
-        Chart {
-            title: "quality vs frame time".into(),
-            x_label: "ms per frame".into(),
-            y_label: y.clone(),
-            series: series(&|r| r.ms_per_frame, &|r| r.front_render),
-            markers: true,
-            ..Default::default()
-        },
-        Chart {
-            title: "quality vs model size".into(),
-            x_label: "voxels".into(),
-            y_label: y,
-            series: series(&|r| r.voxels as f64, &|_| false),
-            x_log: true,
-            markers: true,
-            ..Default::default()
-        },
-    ]
-}
-
 #[cfg(test)]
 mod tests {
+    use super::report::mark_fronts;
     use super::*;
 
     fn row(name: &str, train_s: f64, ms: f64, psnr: f64) -> TradeRow {
