@@ -201,9 +201,9 @@ void main() {
         uint base = top - cnt;  // batch [base, top) of the chunk
         top = base;
         barrier();
-        stage_slot(P, l, cnt, start + base + l, org, live);
+        uint em = stage_slot(P, walk_slot(), cnt, start + base, org, live);
         barrier();
-        build_visit_before_last(l, start + base);
+        build_visit_before_last(l, em, start + base);
         barrier();
 #ifdef COUNTERS
         c_dense += cnt;
@@ -230,7 +230,8 @@ void main() {
             if (subgroupAny(need)) c_useful += 1u;
             if (need) c_pairs += 1u;
 #endif
-            if (!subgroupAny(need)) continue;
+            // No vote here: the visit set holds only entries some lane needs (1.00 trips
+            // per useful trip), and a vote is a loop over the lanes on llvmpipe.
 
             // Recompute the forward quantities of this entry (identically to composite).
             vec4 cs = e.cs;

@@ -107,9 +107,9 @@ void main() {
         if (live == 0u) break;
 
         uint cnt = min(256u, n - base);
-        stage_slot(P, l, cnt, start + base + l, org, live);
+        uint em = stage_slot(P, walk_slot(), cnt, start + base, org, live);
         barrier();
-        build_visit(l);
+        build_visit(l, em);
         barrier();
 #ifdef COUNTERS
         // What the full walk did: every subgroup, every staged entry, while any pixel

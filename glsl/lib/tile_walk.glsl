@@ -27,6 +27,7 @@
 #ifndef TILE_WALK_GLSL
 #define TILE_WALK_GLSL
 #include "entry_stage.glsl"
+#extension GL_KHR_shader_subgroup_shuffle : require
 
 shared uint s_sgbox[32];       // per subgroup: x0 | x1 << 8 | y0 << 16 | y1 << 24
 shared uint s_colmask[256];    // [x0 * 16 + x1], x0 <= x1
@@ -70,17 +71,26 @@ uint entry_groups(uint val, uvec2 box, uvec2 org, uint live) {
            s_signmask[val >> 29u];
 }
 
-// Stages sorted entry `index` in slot l (when l < cnt) and records the subgroups of
-// `live` that must visit it in s_emask[l] (0 for the slots past cnt).
-void stage_slot(FrameParams P, uint l, uint cnt, uint index, uvec2 org, uint live) {
+// The staging slot of this invocation: slots follow the subgroups (slot 8·s + lane for
+// 8-lane subgroups), which build_visit's register transpose relies on; any bijection
+// onto 0..255 serves the generic path.
+uint walk_slot() {
+    return gl_SubgroupID * gl_SubgroupSize + gl_SubgroupInvocationID;
+}
+
+// Stages sorted entry `first + slot` in `slot` (when slot < cnt) and returns the
+// subgroups of `live` that must visit it (0 for the slots past cnt), also kept in
+// s_emask[slot].
+uint stage_slot(FrameParams P, uint slot, uint cnt, uint first, uvec2 org, uint live) {
     uint em = 0u;
-    if (l < cnt) {
+    if (slot < cnt) {
         uint val;
         uvec2 box;
-        stage_entry(P, l, index, val, box);
+        stage_entry(P, slot, first + slot, val, box);
         em = entry_groups(val, box, org, live);
     }
-    s_emask[l] = em;
+    s_emask[slot] = em;
+    return em;
 }
 
 #ifdef COUNTERS
@@ -105,25 +115,56 @@ void flush_counters(U64s ctr, uint base, uint trips, uint useful, uint dense, ui
 }
 #endif
 
-// Transposes s_emask into the per-subgroup visit sets (call between barriers).
-void build_visit(uint l) {
+shared uint s_vt[256];  // 8-lane subgroups: per slot, the transposed byte rows
+
+// Builds the per-subgroup visit sets from the slots' masks (`em`: this invocation's
+// slot's, from stage_slot), dropping for subgroup s the slots at or after `cut[s]`
+// (slot 0 is sorted entry `first`; the backward's last contributors, else no cut).
+// Called between barriers, in uniform control flow.
+//
+// 8-lane subgroups (lavapipe): a subgroup's 8 slots form an 8 × 32 bit matrix (row r:
+// lane r's mask, column s: target subgroup). Three xor-shuffle butterflies transpose its
+// four 8 × 8 blocks in registers, after which lane L's byte c holds the 8 slots' bits for
+// subgroup 8c + L; a visit word (32 slots) is then 4 such bytes, so each invocation
+// reads 4 words of s_vt instead of 32 masks. llvmpipe turns each shared load into a
+// loop over the lanes and a shuffle into one permute, so this costs about a seventh of
+// the generic transpose (README, Performance). Other sizes read the 32 masks.
+void build_visit_cut(uint l, uint em, bool cut, uint first) {
     uint s = l >> 3u, w = l & 7u;
-    if (s < gl_NumSubgroups) {
-        uint bits = 0u;
+    uint bits = 0u;
+    if (gl_SubgroupSize == 8u) {
+        uint lane = gl_SubgroupInvocationID;
+        uint x = em;
+        [[unroll]] for (uint d = 1u; d < 8u; d <<= 1u) {
+            uint m = d == 1u ? 0xaaaaaaaau : (d == 2u ? 0xccccccccu : 0xf0f0f0f0u);
+            uint y = subgroupShuffleXor(x, d);
+            x = (lane & d) == 0u ? ((x & ~m) | ((y & ~m) << d)) : ((x & m) | ((y & m) >> d));
+        }
+        s_vt[l] = x;
+        barrier();
+        uint sh = 8u * (s >> 3u);
+        [[unroll]] for (uint k = 0u; k < 4u; ++k)
+            bits |= ((s_vt[8u * (4u * w + k) + (s & 7u)] >> sh) & 0xffu) << (8u * k);
+    } else if (s < gl_NumSubgroups) {
         [[unroll]] for (uint i = 0u; i < 32u; ++i) bits |= ((s_emask[32u * w + i] >> s) & 1u) << i;
+    }
+    if (s < gl_NumSubgroups) {
+        if (cut) {
+            int keep = clamp(int(s_sglast[s]) - int(first) - int(32u * w), 0, 32);
+            bits = keep == 32 ? bits : bits & ((1u << uint(keep)) - 1u);
+        }
         s_visit[l] = bits;
     }
 }
 
-// The backward's transpose: also drops the slots at or after the subgroup's last
-// contributor (slot 0 is sorted entry `first`).
-void build_visit_before_last(uint l, uint first) {
-    uint s = l >> 3u, w = l & 7u;
-    if (s < gl_NumSubgroups) {
-        uint bits = 0u;
-        [[unroll]] for (uint i = 0u; i < 32u; ++i) bits |= ((s_emask[32u * w + i] >> s) & 1u) << i;
-        int keep = clamp(int(s_sglast[s]) - int(first) - int(32u * w), 0, 32);
-        s_visit[l] = keep == 32 ? bits : bits & ((1u << uint(keep)) - 1u);
-    }
+// The forward's visit sets.
+void build_visit(uint l, uint em) {
+    build_visit_cut(l, em, false, 0u);
+}
+
+// The backward's: also drops the slots at or after the subgroup's last contributor
+// (slot 0 is sorted entry `first`).
+void build_visit_before_last(uint l, uint em, uint first) {
+    build_visit_cut(l, em, true, first);
 }
 #endif
