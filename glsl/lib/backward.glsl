@@ -337,7 +337,6 @@ void main() {
                 T = Tk;
             }
             // One voxel per entry: reduce over the subgroup, every lane adds a component.
-            if (!subgroupAny(need)) continue;
             float red[16];
             for (uint c = 0u; c < 8u; ++c) red[VG_GEO + c] = d_geo[c];
             for (uint c = 0u; c < 3u; ++c) {
