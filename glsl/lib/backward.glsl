@@ -188,7 +188,6 @@ void main() {
     uvec2 org = gl_WorkGroupID.xy * 16u;
     walk_setup(l, tile_pixel(l), sign, inside);
     uint sg_last = subgroupMax(inside ? last : 0u);
-    if (subgroupElect()) s_sglast[sg] = sg_last;
     // Subgroups with a contributor in this chunk.
     if (l == 0u) s_live = 0u;
     barrier();
@@ -201,10 +200,10 @@ void main() {
         uint base = top - cnt;  // batch [base, top) of the chunk
         top = base;
         barrier();
-        uint em = stage_slot(P, walk_slot(), cnt, start + base, org, live);
+        stage_slot(P, walk_slot(), cnt, start + base, org, live);
         barrier();
-        build_visit_before_last(l, em, start + base);
-        barrier();
+        // Nothing at or after the subgroup's last contributor.
+        uint word = visit_word(start + base, sg_last);
 #ifdef COUNTERS
         c_dense += cnt;
         if ((live & (1u << sg)) != 0u) c_build += 1u;
@@ -217,7 +216,7 @@ void main() {
         if (turn == sg) {
 #endif
         for (uint ww = 8u; ww > 0u; --ww) {
-            uint bits = s_visit[8u * sg + ww - 1u];
+            uint bits = subgroupShuffle(word, ww - 1u);
             while (bits != 0u) {
             uint b32 = uint(findMSB(bits));
             bits &= ~(1u << b32);

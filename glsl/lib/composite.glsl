@@ -26,7 +26,7 @@ layout(push_constant) uniform Push {
     uint pad;
 } pc;
 
-shared uint s_live;
+shared uint s_live[2];  // per batch parity: subgroups with a pixel still compositing
 
 void main() {
     FrameParams P = pc.P;
@@ -83,6 +83,7 @@ void main() {
 #endif
     uint sg = gl_SubgroupID;
     uvec2 org = gl_WorkGroupID.xy * 16u;
+    if (l < 2u) s_live[l] = 0u;
     walk_setup(l, tile_pixel(l), sign, inside);
 
     uint chunk_size = P.chunk_size;
@@ -95,22 +96,22 @@ void main() {
     }
     uint n = end - start;
 
-    for (uint base = 0u; base < n; base += 256u) {
-        // Subgroups with a pixel still compositing; stop when none is (uniform).
-        barrier();
-        if (l == 0u) s_live = 0u;
-        barrier();
+    for (uint base = 0u, batch = 0u; base < n; base += 256u, ++batch) {
+        // Subgroups with a pixel still compositing; stop when none is (uniform). Two
+        // words by batch parity: the other one, last read before the previous batch's
+        // second barrier, is cleared here for the next batch, so one barrier serves.
+        // It also ends the previous batch's walk before staging overwrites its slots.
         bool sg_live = subgroupAny(!done);
-        if (sg_live && subgroupElect()) atomicOr(s_live, 1u << sg);
+        if (sg_live && subgroupElect()) atomicOr(s_live[batch & 1u], 1u << sg);
+        if (l == 0u) s_live[(batch + 1u) & 1u] = 0u;
         barrier();
-        uint live = s_live;
+        uint live = s_live[batch & 1u];
         if (live == 0u) break;
 
         uint cnt = min(256u, n - base);
-        uint em = stage_slot(P, walk_slot(), cnt, start + base, org, live);
+        stage_slot(P, walk_slot(), cnt, start + base, org, live);
         barrier();
-        build_visit(l, em);
-        barrier();
+        uint word = visit_word(start + base, start + base + 256u);
 #ifdef COUNTERS
         // What the full walk did: every subgroup, every staged entry, while any pixel
         // of the tile was live.
@@ -119,7 +120,7 @@ void main() {
 #endif
 
         for (uint w = 0u; w < 8u; ++w) {
-            uint bits = s_visit[8u * sg + w];
+            uint bits = subgroupShuffle(word, w);
             while (bits != 0u) {
             uint j = 32u * w + uint(findLSB(bits));
             bits &= bits - 1u;

@@ -13,17 +13,20 @@
 // signs[s] holds the subgroups with a pixel whose ray sign octant is s (an entry is only
 // ever composited by rays of its own octant); live the subgroups with a pixel still
 // compositing. The masks are then transposed into one 256-bit visit set per subgroup
-// (8 words; bit j: visit slot j), which the walk enumerates with findLSB (front to
-// back) or findMSB (back to front): depth order is the slot order, as before.
+// (8 words; bit j: visit slot j; lane w of the subgroup holds word w), which the walk
+// enumerates with findLSB (front to back) or findMSB (back to front): depth order is the
+// slot order, as before.
 //
 // Assumes full subgroups of a power-of-two size ≥ 8 (at most 32 subgroups per
 // workgroup): the pipeline requires full subgroups where the device offers
 // computeFullSubgroups, and a 256-invocation workgroup splits into full subgroups of any
 // power-of-two size on every driver we know.
 //
-// Cost per batch of 256 entries: 32 unrolled mask reads per thread for the transpose,
-// then one loop trip per entry a subgroup visits. Lanes still test the exact rectangle
-// and sign per pixel (covers), so the images are bit-identical to a full walk.
+// Cost per batch of 256 entries: staging, a register transpose (8-lane subgroups; else
+// 32 mask reads per visit word), 4 shared reads per visit word, two barriers (the
+// composite's live vote shares the first), then one loop trip per entry a subgroup
+// visits. Lanes still test the exact rectangle and sign per pixel (covers), so the
+// images are bit-identical to a full walk.
 #ifndef TILE_WALK_GLSL
 #define TILE_WALK_GLSL
 #include "entry_stage.glsl"
@@ -33,9 +36,7 @@ shared uint s_sgbox[32];       // per subgroup: x0 | x1 << 8 | y0 << 16 | y1 << 
 shared uint s_colmask[256];    // [x0 * 16 + x1], x0 <= x1
 shared uint s_rowmask[256];    // [y0 * 16 + y1]
 shared uint s_signmask[8];
-shared uint s_emask[256];      // per staged slot: subgroups that visit it
-shared uint s_visit[32 * 8];   // per subgroup: 256-bit visit set
-shared uint s_sglast[32];      // backward: per subgroup, 1 + its last contributor
+shared uint s_emask[256];      // per staged slot: subgroups that visit it (sizes ≠ 8)
 
 // Once per dispatch, in uniform control flow: the subgroups' blocks, the column/row
 // tables and the sign masks. `lp` is the tile-local pixel of this invocation.
@@ -71,17 +72,27 @@ uint entry_groups(uint val, uvec2 box, uvec2 org, uint live) {
            s_signmask[val >> 29u];
 }
 
-// The staging slot of this invocation: slots follow the subgroups (slot 8·s + lane for
-// 8-lane subgroups), which build_visit's register transpose relies on; any bijection
-// onto 0..255 serves the generic path.
+// The staging slot of this invocation: slots follow the subgroups (slot S·s + lane),
+// which the 8-lane transpose (stage_slot, visit_word) relies on.
 uint walk_slot() {
     return gl_SubgroupID * gl_SubgroupSize + gl_SubgroupInvocationID;
 }
 
-// Stages sorted entry `first + slot` in `slot` (when slot < cnt) and returns the
-// subgroups of `live` that must visit it (0 for the slots past cnt), also kept in
-// s_emask[slot].
-uint stage_slot(FrameParams P, uint slot, uint cnt, uint first, uvec2 org, uint live) {
+shared uint s_vt[256];  // 8-lane subgroups: per slot, a row of the transposed masks
+
+// Stages sorted entry `first + slot` in `slot` (this invocation's walk_slot(), when
+// slot < cnt) and publishes the set of subgroups of `live` that must visit it (none
+// for the slots past cnt) for visit_word, which reads it after a barrier. Uniform
+// control flow.
+//
+// 8-lane subgroups (lavapipe): the subgroup's 8 slots form an 8 × 32 bit matrix (row r:
+// lane r's set, column s: subgroup s). Three xor-shuffle butterflies transpose its four
+// 8 × 8 blocks in registers, after which lane L's byte c holds the 8 slots' bits for
+// subgroup 8c + L (s_vt). A visit word of 32 slots is then 4 such bytes: 4 shared reads
+// where reading the 32 sets would take 32 (llvmpipe turns every shared access into a
+// loop over the lanes, and a shuffle into one permute). Other sizes publish the sets
+// (s_emask) and visit_word reads 32 of them.
+void stage_slot(FrameParams P, uint slot, uint cnt, uint first, uvec2 org, uint live) {
     uint em = 0u;
     if (slot < cnt) {
         uint val;
@@ -89,8 +100,36 @@ uint stage_slot(FrameParams P, uint slot, uint cnt, uint first, uvec2 org, uint 
         stage_entry(P, slot, first + slot, val, box);
         em = entry_groups(val, box, org, live);
     }
-    s_emask[slot] = em;
-    return em;
+    if (gl_SubgroupSize == 8u) {
+        uint lane = gl_SubgroupInvocationID;
+        [[unroll]] for (uint d = 1u; d < 8u; d <<= 1u) {
+            uint m = d == 1u ? 0xaaaaaaaau : (d == 2u ? 0xccccccccu : 0xf0f0f0f0u);
+            uint y = subgroupShuffleXor(em, d);
+            em = (lane & d) == 0u ? ((em & ~m) | ((y & ~m) << d)) : ((em & m) | ((y & m) >> d));
+        }
+        s_vt[slot] = em;
+    } else {
+        s_emask[slot] = em;
+    }
+}
+
+// This subgroup's visit word `w = lane` (lanes 0..7; bit i: visit slot 32w + i; 0 on
+// other lanes), keeping only the slots before `cut` (slot 0 is sorted entry `first`;
+// pass cut = first + 256 or more to keep all). Call after the barrier that follows
+// stage_slot; the walk takes word w with subgroupShuffle(word, w).
+uint visit_word(uint first, uint cut) {
+    uint sg = gl_SubgroupID, w = gl_SubgroupInvocationID;
+    if (w >= 8u) return 0u;
+    uint bits = 0u;
+    if (gl_SubgroupSize == 8u) {
+        uint sh = 8u * (sg >> 3u);
+        [[unroll]] for (uint k = 0u; k < 4u; ++k)
+            bits |= ((s_vt[8u * (4u * w + k) + (sg & 7u)] >> sh) & 0xffu) << (8u * k);
+    } else {
+        [[unroll]] for (uint i = 0u; i < 32u; ++i) bits |= ((s_emask[32u * w + i] >> sg) & 1u) << i;
+    }
+    int keep = clamp(int(cut) - int(first) - int(32u * w), 0, 32);
+    return keep == 32 ? bits : bits & ((1u << uint(keep)) - 1u);
 }
 
 #ifdef COUNTERS
@@ -115,56 +154,4 @@ void flush_counters(U64s ctr, uint base, uint trips, uint useful, uint dense, ui
 }
 #endif
 
-shared uint s_vt[256];  // 8-lane subgroups: per slot, the transposed byte rows
-
-// Builds the per-subgroup visit sets from the slots' masks (`em`: this invocation's
-// slot's, from stage_slot), dropping for subgroup s the slots at or after `cut[s]`
-// (slot 0 is sorted entry `first`; the backward's last contributors, else no cut).
-// Called between barriers, in uniform control flow.
-//
-// 8-lane subgroups (lavapipe): a subgroup's 8 slots form an 8 × 32 bit matrix (row r:
-// lane r's mask, column s: target subgroup). Three xor-shuffle butterflies transpose its
-// four 8 × 8 blocks in registers, after which lane L's byte c holds the 8 slots' bits for
-// subgroup 8c + L; a visit word (32 slots) is then 4 such bytes, so each invocation
-// reads 4 words of s_vt instead of 32 masks. llvmpipe turns each shared load into a
-// loop over the lanes and a shuffle into one permute, so this costs about a seventh of
-// the generic transpose (README, Performance). Other sizes read the 32 masks.
-void build_visit_cut(uint l, uint em, bool cut, uint first) {
-    uint s = l >> 3u, w = l & 7u;
-    uint bits = 0u;
-    if (gl_SubgroupSize == 8u) {
-        uint lane = gl_SubgroupInvocationID;
-        uint x = em;
-        [[unroll]] for (uint d = 1u; d < 8u; d <<= 1u) {
-            uint m = d == 1u ? 0xaaaaaaaau : (d == 2u ? 0xccccccccu : 0xf0f0f0f0u);
-            uint y = subgroupShuffleXor(x, d);
-            x = (lane & d) == 0u ? ((x & ~m) | ((y & ~m) << d)) : ((x & m) | ((y & m) >> d));
-        }
-        s_vt[l] = x;
-        barrier();
-        uint sh = 8u * (s >> 3u);
-        [[unroll]] for (uint k = 0u; k < 4u; ++k)
-            bits |= ((s_vt[8u * (4u * w + k) + (s & 7u)] >> sh) & 0xffu) << (8u * k);
-    } else if (s < gl_NumSubgroups) {
-        [[unroll]] for (uint i = 0u; i < 32u; ++i) bits |= ((s_emask[32u * w + i] >> s) & 1u) << i;
-    }
-    if (s < gl_NumSubgroups) {
-        if (cut) {
-            int keep = clamp(int(s_sglast[s]) - int(first) - int(32u * w), 0, 32);
-            bits = keep == 32 ? bits : bits & ((1u << uint(keep)) - 1u);
-        }
-        s_visit[l] = bits;
-    }
-}
-
-// The forward's visit sets.
-void build_visit(uint l, uint em) {
-    build_visit_cut(l, em, false, 0u);
-}
-
-// The backward's: also drops the slots at or after the subgroup's last contributor
-// (slot 0 is sorted entry `first`).
-void build_visit_before_last(uint l, uint em, uint first) {
-    build_visit_cut(l, em, true, first);
-}
 #endif
