@@ -542,6 +542,8 @@ fn constants_module(glsl: &Path, headers: &[&PathBuf]) -> String {
 /// - `train/tv[_cas|_det]`, `train/voxel_backward[_cas|_det]`: TV and the per-voxel
 ///   backward, with native float atomic adds, (`_cas`) a compare-and-swap loop, or
 ///   (`_det`) plain per-voxel-corner writes for the ordered reduction.
+/// - `sort/histogram[_k32]`, `sort/onesweep[_k32]`: the radix sort's digit histogram
+///   and pass over u64 keys, or (`_k32`) u32 keys for a sort whose bits all lie below 32.
 fn variants() -> Vec<Variant> {
     variant_table()
 }
@@ -551,6 +553,18 @@ type Variant = (String, &'static str, Vec<(&'static str, String)>);
 
 fn variant_table() -> Vec<Variant> {
     let mut v = Vec::new();
+    // Radix sort passes over u64 keys, or (`_k32`) u32 keys.
+    for (body, name) in [
+        ("sort_histogram.glsl", "sort/histogram"),
+        ("onesweep.glsl", "sort/onesweep"),
+    ] {
+        v.push((name.to_string(), body, vec![]));
+        v.push((
+            format!("{name}_k32"),
+            body,
+            vec![("KEY32", "1".to_string())],
+        ));
+    }
     // Float adds: native atomics (VK_EXT_shader_atomic_float) or a CAS loop (any device).
     for (body, name) in [
         ("tv.glsl", "train/tv"),

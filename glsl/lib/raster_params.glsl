@@ -31,7 +31,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     uint supersampled;    // 0/1: render_size differs from out_size (downsample pass)
     uvec2 out_size;       // width, height of the output image
     uint shs_stride;      // SH coefficients stored per voxel (rgb triples)
-    uint pad0;
+    uint key32;           // 0/1: the sort keys are u32 (the sort's bits fit in 32)
     vec2 ss_scale;        // render / out size, x and y
     vec2 filter_radius;   // downsample filter radius, x and y (output pixels)
     ivec3 cam_int;        // camera position in finest-grid units: integer part

@@ -5,6 +5,7 @@
 //   key   = tile_id << (3 * max_level) | direction-dependent Morton order (top 3*max_level
 //           bits of the 48-bit path; lower levels are unused by every voxel)
 //   value = sign << 29 | voxel id
+// Stored as u32 when P.key32 (tile and Morton bits fit in 32: the sort moves less).
 #include "raster_params.glsl"
 #include "morton.glsl"
 layout(local_size_x = 256) in;
@@ -42,6 +43,11 @@ void main() {
     uint tile = (tlo.y + tr / tw) * P.tiles.x + tlo.x + tr % tw;
     uint shift = P.key_shift;
     uint64_t order = dir_morton_order(P.octpath.v[v], sign) >> (48u - shift);
-    P.keys.v[i] = (uint64_t(tile) << shift) | order;
+    uint64_t key = (uint64_t(tile) << shift) | order;
+    if (P.key32 != 0u) {
+        U32s(uint64_t(P.keys)).v[i] = uint(key);  // the key's bits fit in 32
+    } else {
+        P.keys.v[i] = key;
+    }
     P.vals.v[i] = (sign << 29u) | v;
 }

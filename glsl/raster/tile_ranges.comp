@@ -14,7 +14,18 @@ void main() {
     uint n = P.stats.v[STAT_USED];
     if (i >= n) return;
     uint shift = P.key_shift;
-    uint tile = uint(P.skeys.v[i] >> shift);
-    if (i == 0u || uint(P.skeys.v[i - 1u] >> shift) != tile) P.ranges.v[2u * tile] = i;
-    if (i + 1u == n || uint(P.skeys.v[i + 1u] >> shift) != tile) P.ranges.v[2u * tile + 1u] = i + 1u;
+    U32s k32 = U32s(uint64_t(P.skeys));  // u32 keys (P.key32)
+    uint tile = P.key32 != 0u ? k32.v[i] >> shift : uint(P.skeys.v[i] >> shift);
+    if (i == 0u) {
+        P.ranges.v[2u * tile] = i;
+    } else {
+        uint prev = P.key32 != 0u ? k32.v[i - 1u] >> shift : uint(P.skeys.v[i - 1u] >> shift);
+        if (prev != tile) P.ranges.v[2u * tile] = i;
+    }
+    if (i + 1u == n) {
+        P.ranges.v[2u * tile + 1u] = i + 1u;
+    } else {
+        uint next = P.key32 != 0u ? k32.v[i + 1u] >> shift : uint(P.skeys.v[i + 1u] >> shift);
+        if (next != tile) P.ranges.v[2u * tile + 1u] = i + 1u;
+    }
 }

@@ -49,7 +49,7 @@ use crate::gpu::{
 };
 use crate::scan::PrefixScan;
 use crate::scene::{Scene, MAX_LEVEL};
-use crate::sort::{Count, RadixSort, SortBuffers, Sorted};
+use crate::sort::{Count, KeyWidth, RadixSort, SortBuffers, Sorted};
 use crate::{Error, Result};
 
 /// Tile edge in pixels.
@@ -419,7 +419,7 @@ impl Renderer {
             supersampled: plan.supersampled as u32,
             out_size: [plan.out_w, plan.out_h],
             shs_stride: scene.shs_per_voxel,
-            pad0: 0,
+            key32: (plan.sort_bits <= 32) as u32,
             ss_scale: [sx, sy],
             filter_radius: [sx.max(1.0), sy.max(1.0)],
             cam_int: [cam_fine[0].0, cam_fine[1].0, cam_fine[2].0],
@@ -528,7 +528,13 @@ impl Renderer {
             t.mark(cmd, "emit_keys");
         }
         let sort = self.sort.as_ref().expect("prepared");
-        let sorted = sort.record(
+        // Keys whose bits fit in 32 are sorted as u32 (a third less traffic per pass).
+        let width = if plan.sort_bits <= 32 {
+            KeyWidth::U32
+        } else {
+            KeyWidth::U64
+        };
+        let sorted = sort.record_keys(
             cmd,
             &SortBuffers {
                 keys: self.keys.get(),
@@ -541,6 +547,7 @@ impl Renderer {
                 offset: STAT_USED as u64 * 4,
             },
             0..plan.sort_bits,
+            width,
             None,
         )?;
         debug_assert_eq!(

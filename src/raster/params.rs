@@ -28,7 +28,8 @@ pub(super) struct FrameParams {
     pub(super) supersampled: u32,
     pub(super) out_size: [u32; 2],
     pub(super) shs_stride: u32,
-    pub(super) pad0: u32,
+    /// 1: the sort keys are u32 (key bits ≤ 32, [`crate::sort::KeyWidth::U32`]).
+    pub(super) key32: u32,
     pub(super) ss_scale: [f32; 2],
     pub(super) filter_radius: [f32; 2],
     pub(super) cam_int: [i32; 3],

@@ -1,6 +1,8 @@
-//! Onesweep radix sort of u64 keys with u32 values (stable, any bit range), recorded
-//! into any command buffer with no host read-back; the element count can come from a
-//! GPU buffer (indirect dispatch). See `glsl/sort/onesweep.comp` for the algorithm.
+//! Onesweep radix sort of u64 keys (or u32 keys, [`KeyWidth::U32`], for bit ranges below
+//! 32: 8 instead of 12 bytes moved per pair and pass) with u32 values (stable, any bit
+//! range), recorded into any command buffer with no host read-back; the element count
+//! can come from a GPU buffer (indirect dispatch). See `glsl/lib/onesweep.glsl` for the
+//! algorithm.
 //!
 //! Per sort: `setup` (count, dispatch arguments, epoch) → `histogram` (all digits at
 //! once) → `hist_scan` (global digit offsets) → one `onesweep` pass per 8-bit digit,
@@ -15,10 +17,10 @@ use crate::error::{Error, Result};
 use crate::gpu::{glsl, kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
 use crate::push_constants;
 
-/// Elements per onesweep tile (WG × KPT in onesweep.comp).
-pub const SORT_TILE: u32 = 128 * 16;
-/// Keys per histogram workgroup (WG × KPT in histogram.comp).
-const HIST_CHUNK: u32 = 256 * 16;
+/// Elements per onesweep tile (WG × KPT in onesweep.glsl).
+pub const SORT_TILE: u32 = glsl::WG * glsl::KPT;
+/// Keys per histogram workgroup (HIST_WG × HIST_KPT in sort_histogram.glsl).
+const HIST_CHUNK: u32 = glsl::HIST_WG * glsl::HIST_KPT;
 // Words of the state buffer (ST_* in pass_state.glsl).
 /// Words of the state buffer (ST_WORDS in pass_state.glsl: 8 passes × 256 digits after
 /// the header).
@@ -99,6 +101,33 @@ pub struct SortBuffers<'a> {
     pub values: &'a Buffer,
     pub keys_alt: &'a Buffer,
     pub values_alt: &'a Buffer,
+}
+
+/// Width of the keys in a sort's key buffers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KeyWidth {
+    /// u64 keys, any bit range within 0..64.
+    U64,
+    /// u32 keys: bit ranges within 0..32.
+    U32,
+}
+
+impl KeyWidth {
+    /// Bytes per key.
+    pub fn bytes(self) -> u64 {
+        match self {
+            KeyWidth::U64 => 8,
+            KeyWidth::U32 => 4,
+        }
+    }
+
+    /// Bits a key holds.
+    pub fn bits(self) -> u32 {
+        match self {
+            KeyWidth::U64 => 64,
+            KeyWidth::U32 => 32,
+        }
+    }
 }
 
 /// Which pair of buffers holds the sorted result.
@@ -188,8 +217,10 @@ pub struct RadixSort {
     ctx: Context,
     run: RunState,
     hist: Kernel,
+    hist32: Kernel,
     hist_scan: Kernel,
     pass: Kernel,
+    pass32: Kernel,
 }
 
 impl RadixSort {
@@ -208,8 +239,10 @@ impl RadixSort {
             ctx: ctx.clone(),
             run: RunState::new(ctx, "radix-sort", capacity, tiles * 256)?,
             hist: Kernel::new(ctx, &kernels::SORT_HISTOGRAM)?,
+            hist32: Kernel::new(ctx, &kernels::SORT_HISTOGRAM_K32)?,
             hist_scan: Kernel::new(ctx, &kernels::SORT_HIST_SCAN)?,
             pass: Kernel::new(ctx, &kernels::SORT_ONESWEEP)?,
+            pass32: Kernel::new(ctx, &kernels::SORT_ONESWEEP_K32)?,
         })
     }
 
@@ -231,17 +264,33 @@ impl RadixSort {
         bufs: &SortBuffers,
         count: Count,
         bits: Range<u32>,
+        ts: Option<&mut Timestamps>,
+    ) -> Result<Sorted> {
+        self.record_keys(cmd, bufs, count, bits, KeyWidth::U64, ts)
+    }
+
+    /// [`Self::record`] with keys of `width` (u32 keys: `bits` within 0..32, key buffers
+    /// of 4 bytes per pair).
+    pub fn record_keys(
+        &self,
+        cmd: vk::CommandBuffer,
+        bufs: &SortBuffers,
+        count: Count,
+        bits: Range<u32>,
+        width: KeyWidth,
         mut ts: Option<&mut Timestamps>,
     ) -> Result<Sorted> {
-        if bits.start > bits.end || bits.end > 64 {
+        if bits.start > bits.end || bits.end > width.bits() {
             return Err(Error::Invalid(format!(
-                "bit range {bits:?} is not within 0..64"
+                "bit range {bits:?} is not within 0..{} ({width:?} keys)",
+                width.bits()
             )));
         }
         let need = self.run.capacity as u64;
+        let kw = width.bytes();
         for (b, w) in [
-            (bufs.keys, 8u64),
-            (bufs.keys_alt, 8),
+            (bufs.keys, kw),
+            (bufs.keys_alt, kw),
             (bufs.values, 4),
             (bufs.values_alt, 4),
         ] {
@@ -266,7 +315,11 @@ impl RadixSort {
             t.mark(cmd, "sort.setup");
         }
         let state = self.run.state.address();
-        self.hist.dispatch_indirect(
+        let (hist, pass) = match width {
+            KeyWidth::U64 => (&self.hist, &self.pass),
+            KeyWidth::U32 => (&self.hist32, &self.pass32),
+        };
+        hist.dispatch_indirect(
             cmd,
             &HistPush {
                 keys: bufs.keys.address(),
@@ -313,8 +366,7 @@ impl RadixSort {
                 pass_index: p,
                 spin_limit: spin,
             };
-            self.pass
-                .dispatch_indirect(cmd, &push, self.run.state.raw(), ST_ARGS_TILES);
+            pass.dispatch_indirect(cmd, &push, self.run.state.raw(), ST_ARGS_TILES);
             recorder::barrier(ctx, cmd);
             if let Some(t) = ts.as_deref_mut() {
                 t.mark(cmd, &format!("sort.pass{p}"));
@@ -345,6 +397,26 @@ impl RadixSort {
         values: &[u32],
         bits: Range<u32>,
     ) -> Result<(Vec<u64>, Vec<u32>)> {
+        self.sort_keys(keys, values, bits, KeyWidth::U64)
+    }
+
+    /// [`Self::sort`] of u32 keys (`bits` within 0..32).
+    pub fn sort_u32(
+        &self,
+        keys: &[u32],
+        values: &[u32],
+        bits: Range<u32>,
+    ) -> Result<(Vec<u32>, Vec<u32>)> {
+        self.sort_keys(keys, values, bits, KeyWidth::U32)
+    }
+
+    fn sort_keys<K: Pod>(
+        &self,
+        keys: &[K],
+        values: &[u32],
+        bits: Range<u32>,
+        width: KeyWidth,
+    ) -> Result<(Vec<K>, Vec<u32>)> {
         if keys.len() != values.len() {
             return Err(Error::Invalid(format!(
                 "{} keys but {} values",
@@ -366,7 +438,14 @@ impl RadixSort {
         self.ctx.upload(&b.keys, 0, keys)?;
         self.ctx.upload(&b.values, 0, values)?;
         let which = self.ctx.submit_and_wait(|cmd| {
-            self.record(cmd, &b.as_buffers(), Count::Host(n), bits.clone(), None)
+            self.record_keys(
+                cmd,
+                &b.as_buffers(),
+                Count::Host(n),
+                bits.clone(),
+                width,
+                None,
+            )
         })?;
         let errors = self.take_errors()?;
         if errors != 0 {

@@ -1,5 +1,4 @@
-#version 460
-// One digit pass of the onesweep radix sort (u64 keys, u32 values, stable).
+// One digit pass of the onesweep radix sort (u64 or u32 keys, u32 values, stable).
 //
 // Each workgroup claims a tile of TILE keys with an atomic counter (never by
 // gl_WorkGroupID: drivers give no forward-progress guarantee in that order), then
@@ -24,6 +23,15 @@
 #include "common.glsl"
 #include "pass_state.glsl"
 #include "lookback.glsl"
+// Key width (build.rs variants): u64 keys, or u32 keys with KEY32 (a sort whose bits
+// all lie below 32 moves 8 instead of 12 bytes per pair and pass).
+#ifdef KEY32
+#define KeyT uint
+#define KeyBuf U32s
+#else
+#define KeyT uint64_t
+#define KeyBuf U64s
+#endif
 
 #define WG 128
 #define KPT 16
@@ -34,9 +42,9 @@
 layout(local_size_x = WG) in;
 
 layout(push_constant) uniform Push {
-    U64s keys_in;
+    KeyBuf keys_in;
     U32s vals_in;
-    U64s keys_out;
+    KeyBuf keys_out;
     U32s vals_out;
     U32s state;
     U64s status;      // [tiles][RADIX] look-back words
@@ -73,13 +81,13 @@ void main() {
     uint chunk = tile * TILE + sg * (sgsize * KPT);
 
     // 1. Local ranking (uniform loop: every lane runs all KPT rounds).
-    uint64_t k[KPT];
+    KeyT k[KPT];
     uint v[KPT];
     uint rk[KPT]; // digit << 16 | rank within the subgroup's chunk
     for (uint r = 0u; r < KPT; r++) {
         uint idx = chunk + r * sgsize + lane;
         bool valid = idx < n;
-        uint64_t key = valid ? pc.keys_in.v[idx] : 0ul;
+        KeyT key = valid ? pc.keys_in.v[idx] : KeyT(0);
         uint val = valid ? pc.vals_in.v[idx] : 0u;
         uint d = uint(key >> pc.shift) & digit_mask;
         // Lanes with the same digit: AND of one ballot per digit bit. Subgroups of up to
@@ -173,7 +181,7 @@ void main() {
                 for (uint i = t; i < RADIX; i += WG) s_fallback[i] = 0u;
                 barrier();
                 for (uint r = 0u; r < KPT; r++) {
-                    uint64_t key = pc.keys_in.v[j * TILE + r * WG + t];
+                    KeyT key = pc.keys_in.v[j * TILE + r * WG + t];
                     atomicAdd(s_fallback[uint(key >> pc.shift) & digit_mask], 1u);
                 }
                 barrier();

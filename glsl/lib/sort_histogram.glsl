@@ -1,13 +1,21 @@
-#version 460
 // One pass over the keys builds the 256-bin histogram of every digit of the sort.
 #include "common.glsl"
 #include "pass_state.glsl"
-#define WG 256
-#define KPT 16
-layout(local_size_x = WG) in;
+// Key width (build.rs variants): u64 keys, or u32 keys with KEY32 (a sort whose bits
+// all lie below 32 moves 8 instead of 12 bytes per pair and pass).
+#ifdef KEY32
+#define KeyT uint
+#define KeyBuf U32s
+#else
+#define KeyT uint64_t
+#define KeyBuf U64s
+#endif
+#define HIST_WG 256
+#define HIST_KPT 16
+layout(local_size_x = HIST_WG) in;
 
 layout(push_constant) uniform Push {
-    U64s keys;
+    KeyBuf keys;
     U32s state;
     uint lo;      // first bit sorted
     uint hi;      // one past the last bit sorted
@@ -20,14 +28,14 @@ shared uint s_hist[8 * 256];
 void main() {
     uint t = gl_LocalInvocationID.x;
     uint n = pc.state.v[ST_N];
-    uint base = linear_group_id() * (WG * KPT);
+    uint base = linear_group_id() * (HIST_WG * HIST_KPT);
     if (base >= n) return; // uniform across the workgroup
-    for (uint i = t; i < 8u * 256u; i += WG) s_hist[i] = 0u;
+    for (uint i = t; i < 8u * 256u; i += HIST_WG) s_hist[i] = 0u;
     barrier();
-    for (uint r = 0u; r < KPT; r++) {
-        uint idx = base + r * WG + t;
+    for (uint r = 0u; r < HIST_KPT; r++) {
+        uint idx = base + r * HIST_WG + t;
         if (idx < n) {
-            uint64_t key = pc.keys.v[idx];
+            KeyT key = pc.keys.v[idx];
             for (uint p = 0u; p < pc.passes; p++) {
                 uint shift = pc.lo + 8u * p;
                 uint bits = min(8u, pc.hi - shift);
