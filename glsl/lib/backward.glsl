@@ -203,7 +203,7 @@ void main() {
         stage_slot(P, walk_slot(), cnt, start + base, org, live);
         barrier();
         // Nothing at or after the subgroup's last contributor.
-        uint word = visit_word(start + base, sg_last);
+        uint word = visit_word(P, start + base, sg_last);
 #ifdef COUNTERS
         c_dense += cnt;
         if ((live & (1u << sg)) != 0u) c_build += 1u;

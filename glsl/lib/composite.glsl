@@ -111,7 +111,7 @@ void main() {
         uint cnt = min(256u, n - base);
         stage_slot(P, walk_slot(), cnt, start + base, org, live);
         barrier();
-        uint word = visit_word(start + base, start + base + 256u);
+        uint word = visit_word(P, start + base, start + base + 256u);
 #ifdef COUNTERS
         // What the full walk did: every subgroup, every staged entry, while any pixel
         // of the tile was live.

@@ -35,7 +35,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     vec2 ss_scale;        // render / out size, x and y
     vec2 filter_radius;   // downsample filter radius, x and y (output pixels)
     ivec3 cam_int;        // camera position in finest-grid units: integer part
-    int pad1;
+    uint generic_walk;    // 1: visit sets by the any-subgroup-size path (tests)
     // Host depth convention (raster/host/): a host depth value z at camera-space
     // direction (x', y', 1) and camera depth d satisfies z = dot(xyz, (x', y', 1)) + w / d.
     vec4 depth_map;

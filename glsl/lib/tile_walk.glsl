@@ -92,6 +92,12 @@ shared uint s_vt[256];  // 8-lane subgroups: per slot, a row of the transposed m
 // where reading the 32 sets would take 32 (llvmpipe turns every shared access into a
 // loop over the lanes, and a shuffle into one permute). Other sizes publish the sets
 // (s_emask) and visit_word reads 32 of them.
+// Whether the 8-lane transpose serves (else the path for any size; P.generic_walk forces
+// it for tests).
+bool lanes8(FrameParams P) {
+    return gl_SubgroupSize == 8u && P.generic_walk == 0u;
+}
+
 void stage_slot(FrameParams P, uint slot, uint cnt, uint first, uvec2 org, uint live) {
     uint em = 0u;
     if (slot < cnt) {
@@ -100,7 +106,7 @@ void stage_slot(FrameParams P, uint slot, uint cnt, uint first, uvec2 org, uint 
         stage_entry(P, slot, first + slot, val, box);
         em = entry_groups(val, box, org, live);
     }
-    if (gl_SubgroupSize == 8u) {
+    if (lanes8(P)) {
         uint lane = gl_SubgroupInvocationID;
         [[unroll]] for (uint d = 1u; d < 8u; d <<= 1u) {
             uint m = d == 1u ? 0xaaaaaaaau : (d == 2u ? 0xccccccccu : 0xf0f0f0f0u);
@@ -117,11 +123,11 @@ void stage_slot(FrameParams P, uint slot, uint cnt, uint first, uvec2 org, uint 
 // other lanes), keeping only the slots before `cut` (slot 0 is sorted entry `first`;
 // pass cut = first + 256 or more to keep all). Call after the barrier that follows
 // stage_slot; the walk takes word w with subgroupShuffle(word, w).
-uint visit_word(uint first, uint cut) {
+uint visit_word(FrameParams P, uint first, uint cut) {
     uint sg = gl_SubgroupID, w = gl_SubgroupInvocationID;
     if (w >= 8u) return 0u;
     uint bits = 0u;
-    if (gl_SubgroupSize == 8u) {
+    if (lanes8(P)) {
         uint sh = 8u * (sg >> 3u);
         [[unroll]] for (uint k = 0u; k < 4u; ++k)
             bits |= ((s_vt[8u * (4u * w + k) + (sg & 7u)] >> sh) & 0xffu) << (8u * k);

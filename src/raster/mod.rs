@@ -158,6 +158,7 @@ pub struct Renderer {
     maxw_target: u64,
     counters: Option<Buffer>,
     counters_on: bool,
+    generic_walk: bool,
     /// Frames are recorded for a host (transparent background, host depth); see `host/`.
     host: Option<HostFrame>,
 }
@@ -239,9 +240,20 @@ impl Renderer {
             last: None,
             maxw_target: 0,
             counters: None,
+            generic_walk: false,
             counters_on: false,
             host: None,
         })
+    }
+
+    /// Makes the tile walks of the frames (and training backwards) recorded from now on
+    /// build their visit sets by the path for any subgroup size instead of the 8-lane
+    /// register transpose (`glsl/lib/tile_walk.glsl`), so that path, which real GPUs
+    /// (32 or 64 lanes) take, is exercised on lavapipe. The images and gradients are
+    /// the same; for tests.
+    #[doc(hidden)]
+    pub fn set_generic_walk(&mut self, on: bool) {
+        self.generic_walk = on;
     }
 
     /// Turns the work counters on or off for the frames (and training backwards)
@@ -423,7 +435,7 @@ impl Renderer {
             ss_scale: [sx, sy],
             filter_radius: [sx.max(1.0), sy.max(1.0)],
             cam_int: [cam_fine[0].0, cam_fine[1].0, cam_fine[2].0],
-            pad1: 0,
+            generic_walk: self.generic_walk as u32,
             depth_map: self.host.map_or([0.0; 4], |h| h.depth_map),
             octpath: scene.octpath.address(),
             level: scene.level.address(),

@@ -33,7 +33,8 @@ pub(super) struct FrameParams {
     pub(super) ss_scale: [f32; 2],
     pub(super) filter_radius: [f32; 2],
     pub(super) cam_int: [i32; 3],
-    pub(super) pad1: i32,
+    /// 1: the walk builds visit sets by the path for any subgroup size (tests).
+    pub(super) generic_walk: u32,
     /// Host depth convention (see `host::DepthConvention`).
     pub(super) depth_map: [f32; 4],
     pub(super) octpath: u64,

@@ -63,8 +63,27 @@ pub fn gpu_grads_ss(
     chunk: Option<u32>,
     ss: f32,
 ) -> GpuGrads {
+    gpu_grads_walk(ctx, scene, cam, k, pix, spec, reduction, chunk, ss, false)
+}
+
+/// As [`gpu_grads_ss`]; `generic_walk` forces the tile walk's path for any subgroup size
+/// ([`Renderer::set_generic_walk`]) in the forward and the backward.
+#[allow(clippy::too_many_arguments)]
+pub fn gpu_grads_walk(
+    ctx: &Context,
+    scene: &Scene,
+    cam: &Camera,
+    k: u32,
+    pix: &[PixelWeights],
+    spec: &LossSpec,
+    reduction: Reduction,
+    chunk: Option<u32>,
+    ss: f32,
+    generic_walk: bool,
+) -> GpuGrads {
     let gpu = SceneGpu::upload(ctx, scene).unwrap();
     let mut r = Renderer::new(ctx).unwrap();
+    r.set_generic_walk(generic_walk);
     let opts = RenderOptions {
         samples: k,
         supersample: ss,
