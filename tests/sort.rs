@@ -69,7 +69,15 @@ impl Harness {
         let buf = SortScratch::new(&ctx, capacity).unwrap();
         Harness { ctx, sort, buf }
     }
-    fn run32(&self, keys: &[u32], vals: &[u32], lo: u32, hi: u32) -> (Vec<u32>, Vec<u32>) {
+    /// Sorts keys of `width` (u64 or u32) by bits `lo..hi`; returns the GPU result.
+    fn run_keys<K: bytemuck::Pod>(
+        &self,
+        keys: &[K],
+        vals: &[u32],
+        lo: u32,
+        hi: u32,
+        width: KeyWidth,
+    ) -> (Vec<K>, Vec<u32>) {
         let ctx = &self.ctx;
         let n = keys.len() as u32;
         ctx.upload(&self.buf.keys, 0, keys).unwrap();
@@ -81,7 +89,7 @@ impl Harness {
                     &self.buf.as_buffers(),
                     Count::Host(n),
                     lo..hi,
-                    KeyWidth::U32,
+                    width,
                     None,
                 )
             })
@@ -94,22 +102,10 @@ impl Harness {
         )
     }
     fn run(&self, keys: &[u64], vals: &[u32], lo: u32, hi: u32) -> (Vec<u64>, Vec<u32>) {
-        let ctx = &self.ctx;
-        let n = keys.len() as u32;
-        ctx.upload(&self.buf.keys, 0, keys).unwrap();
-        ctx.upload(&self.buf.values, 0, vals).unwrap();
-        let which = ctx
-            .submit_and_wait(|cmd| {
-                self.sort
-                    .record(cmd, &self.buf.as_buffers(), Count::Host(n), lo..hi, None)
-            })
-            .unwrap();
-        assert_eq!(self.sort.take_errors().unwrap(), 0);
-        let (k, v) = self.buf.result(which);
-        (
-            ctx.download(k, 0, keys.len()).unwrap(),
-            ctx.download(v, 0, keys.len()).unwrap(),
-        )
+        self.run_keys(keys, vals, lo, hi, KeyWidth::U64)
+    }
+    fn run32(&self, keys: &[u32], vals: &[u32], lo: u32, hi: u32) -> (Vec<u32>, Vec<u32>) {
+        self.run_keys(keys, vals, lo, hi, KeyWidth::U32)
     }
 }
 

@@ -1,15 +1,7 @@
 // One pass over the keys builds the 256-bin histogram of every digit of the sort.
 #include "common.glsl"
 #include "pass_state.glsl"
-// Key width (build.rs variants): u64 keys, or u32 keys with KEY32 (a sort whose bits
-// all lie below 32 moves 8 instead of 12 bytes per pair and pass).
-#ifdef KEY32
-#define KeyT uint
-#define KeyBuf U32s
-#else
-#define KeyT uint64_t
-#define KeyBuf U64s
-#endif
+#include "sort_key.glsl"
 #define HIST_WG 256
 #define HIST_KPT 16
 layout(local_size_x = HIST_WG) in;
