@@ -64,8 +64,14 @@ struct Harness {
 
 impl Harness {
     fn new(capacity: u32) -> Self {
+        Self::with_rank(capacity, false)
+    }
+    /// `generic`: rank with ballots (the any-subgroup-size path) instead of the 8-lane
+    /// shuffle comparison.
+    fn with_rank(capacity: u32, generic: bool) -> Self {
         let ctx = common::context();
-        let sort = RadixSort::new(&ctx, capacity).unwrap();
+        let mut sort = RadixSort::new(&ctx, capacity).unwrap();
+        sort.set_generic_rank(generic);
         let buf = SortScratch::new(&ctx, capacity).unwrap();
         Harness { ctx, sort, buf }
     }
@@ -124,6 +130,37 @@ fn check_dist(dist: Dist, seed: u64) {
                     gk[i], gv[i], rk[i], rv[i]
                 );
             }
+        }
+    }
+    common::finish(&h.ctx);
+}
+
+/// The ballot ranking that subgroups of other sizes than 8 take (forced here; lavapipe
+/// takes the shuffle comparison otherwise), u64 and u32 keys, against the reference.
+#[test]
+fn sort_generic_rank() {
+    let h = Harness::with_rank(1 << 20, true);
+    let mut rng = Rng(31);
+    for dist in [
+        Dist::Uniform,
+        Dist::ThreeValues,
+        Dist::LowByteOnly,
+        Dist::Reversed,
+    ] {
+        for &n in &[1usize, 257, 4097, 65_537, 1 << 20] {
+            let keys = keys_for(dist, n, &mut rng);
+            let vals: Vec<u32> = (0..n as u32).collect();
+            for (lo, hi) in [(0, 64), (5, 12)] {
+                let (gk, gv) = h.run(&keys, &vals, lo, hi);
+                let (rk, rv) = common::reference_sort(&keys, &vals, lo, hi);
+                assert!(gk == rk && gv == rv, "{dist:?} n={n} bits {lo}..{hi}");
+            }
+            let k32: Vec<u32> = keys.iter().map(|&k| k as u32).collect();
+            let wide: Vec<u64> = k32.iter().map(|&k| k as u64).collect();
+            let (gk, gv) = h.run32(&k32, &vals, 0, 26);
+            let (rk, rv) = common::reference_sort(&wide, &vals, 0, 26);
+            let rk: Vec<u32> = rk.iter().map(|&k| k as u32).collect();
+            assert!(gk == rk && gv == rv, "{dist:?} n={n} u32 bits 0..26");
         }
     }
     common::finish(&h.ctx);

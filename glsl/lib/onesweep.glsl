@@ -21,6 +21,8 @@
 // is at most the number of workgroups running concurrently (the worker threads, on
 // lavapipe), each costing <= 2 * spin_limit + KPT iterations.
 #include "common.glsl"
+#extension GL_KHR_shader_subgroup_shuffle : require
+#extension GL_EXT_control_flow_attributes : require
 #include "pass_state.glsl"
 #include "lookback.glsl"
 #include "sort_key.glsl"
@@ -44,6 +46,8 @@ layout(push_constant) uniform Push {
     uint bits;        // digit width (1..8)
     uint pass_index;  // 0..7
     uint spin_limit;  // polls of a predecessor before the fallback
+    uint generic_rank; // 1: rank with ballots on any subgroup size (tests)
+    uint pad;
 } pc;
 
 shared uint s_tile;
@@ -85,7 +89,17 @@ void main() {
         // Lanes with the same digit: AND of one ballot per digit bit. Subgroups of up to
         // 32 lanes (lavapipe, NVIDIA, Intel) need only the first mask word.
         uint below, cnt;
-        if (sgsize <= 32u) {
+        if (sgsize == 8u && pc.generic_rank == 0u) {
+            // 8 lanes (lavapipe): compare digits through shuffles (one permute each)
+            // instead of 8 ballots (each a loop over the lanes there). An invalid lane
+            // carries a digit no valid lane has.
+            uint dd = valid ? d : 0xffffffffu;
+            uint match = 0u;
+            [[unroll]] for (uint i = 0u; i < 8u; i++)
+                match |= subgroupShuffle(dd, i) == dd ? (1u << i) : 0u;
+            below = bitCount(match & lt.x);
+            cnt = bitCount(match);
+        } else if (sgsize <= 32u) {
             uint match = subgroupBallot(valid).x;
             for (uint b = 0u; b < pc.bits; b++) {
                 bool set = ((d >> b) & 1u) != 0u;

@@ -83,6 +83,8 @@ struct PassPush {
     bits: u32,
     pass_index: u32,
     spin_limit: u32,
+    generic_rank: u32,
+    pad: u32,
 }
 push_constants!(PassPush, kernels::SORT_ONESWEEP);
 
@@ -221,6 +223,7 @@ pub struct RadixSort {
     hist_scan: Kernel,
     pass: Kernel,
     pass32: Kernel,
+    generic_rank: bool,
 }
 
 impl RadixSort {
@@ -243,7 +246,17 @@ impl RadixSort {
             hist_scan: Kernel::new(ctx, &kernels::SORT_HIST_SCAN)?,
             pass: Kernel::new(ctx, &kernels::SORT_ONESWEEP)?,
             pass32: Kernel::new(ctx, &kernels::SORT_ONESWEEP_K32)?,
+            generic_rank: false,
         })
+    }
+
+    /// With `on`, the passes rank keys with one ballot per digit bit on every subgroup
+    /// size instead of the 8-lane shuffle comparison (`glsl/lib/onesweep.glsl`), so the
+    /// path that real GPUs (32 or 64 lanes) take is exercised on lavapipe. The result is
+    /// the same; for tests.
+    #[doc(hidden)]
+    pub fn set_generic_rank(&mut self, on: bool) {
+        self.generic_rank = on;
     }
 
     pub fn capacity(&self) -> u32 {
@@ -365,6 +378,8 @@ impl RadixSort {
                 bits: (bits.end - shift).min(8),
                 pass_index: p,
                 spin_limit: spin,
+                generic_rank: self.generic_rank as u32,
+                pad: 0,
             };
             pass.dispatch_indirect(cmd, &push, self.run.state.raw(), ST_ARGS_TILES);
             recorder::barrier(ctx, cmd);
