@@ -80,11 +80,18 @@ void main() {
     KeyT k[KPT];
     uint v[KPT];
     uint rk[KPT]; // digit << 16 | rank within the subgroup's chunk
+    // All loads first: independent, so their memory latencies overlap (on lavapipe a
+    // load is a gather, and one per round of the ranking left the core waiting on it).
     for (uint r = 0u; r < KPT; r++) {
         uint idx = chunk + r * sgsize + lane;
         bool valid = idx < n;
-        KeyT key = valid ? pc.keys_in.v[idx] : KeyT(0);
-        uint val = valid ? pc.vals_in.v[idx] : 0u;
+        k[r] = valid ? pc.keys_in.v[idx] : KeyT(0);
+        v[r] = valid ? pc.vals_in.v[idx] : 0u;
+    }
+    for (uint r = 0u; r < KPT; r++) {
+        uint idx = chunk + r * sgsize + lane;
+        bool valid = idx < n;
+        KeyT key = k[r];
         uint d = uint(key >> pc.shift) & digit_mask;
         // Lanes with the same digit: AND of one ballot per digit bit. Subgroups of up to
         // 32 lanes (lavapipe, NVIDIA, Intel) need only the first mask word.
@@ -124,8 +131,6 @@ void main() {
         if (valid && below == 0u) s_rows[sg * RADIX + d] = prev + cnt;
         subgroupMemoryBarrierShared();
         subgroupBarrier();
-        k[r] = key;
-        v[r] = val;
         rk[r] = (d << 16) | (prev + below);
     }
     barrier();
