@@ -20,7 +20,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) buffer BackParams 
     F32s vgrad;   // per voxel, VG_STRIDE floats
     F32s grad_geo;  // per grid point
     F32s grad_sh0;  // per voxel, 3
-    F32s grad_shs;  // per voxel, 3 * stored coefficients
+    F32s grad_shs;  // per voxel, 3 * stored coefficients (blocked: sh_layout.glsl)
     F32s priority;  // per voxel, accumulated Σ|α ∂L/∂α|
     U32s lost;      // CAS give-ups (atomic_f32.glsl)
     // Ordered reduction only (DETERMINISTIC variants; 0 otherwise):

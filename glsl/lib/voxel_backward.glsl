@@ -9,6 +9,7 @@
 #include "atomic_f32.glsl"
 #include "raster_params.glsl"
 #include "sh.glsl"
+#include "sh_layout.glsl"
 #include "trilinear.glsl"
 #include "backward_params.glsl"
 layout(local_size_x = 256) in;
@@ -28,7 +29,7 @@ void main() {
     uint nc = (degree + 1u) * (degree + 1u) - 1u;
     if (P.counts.v[v] == 0u) {
         for (uint c = 0u; c < 3u; ++c) B.grad_sh0.v[3u * v + c] = 0.0;
-        for (uint k = 0u; k < 3u * stride; ++k) B.grad_shs.v[3u * stride * v + k] = 0.0;
+        for (uint e = 0u; e < 3u * stride; ++e) B.grad_shs.v[shs_index(v, e, 3u * stride)] = 0.0;
 #ifdef DETERMINISTIC
         for (uint c = 0u; c < 8u; ++c) B.vcorner.v[8u * v + c] = 0.0;
 #endif
@@ -47,9 +48,9 @@ void main() {
     drgb = mix(vec3(0.0), drgb, greaterThan(rgb, vec3(0.0)));
     for (uint c = 0u; c < 3u; ++c) B.grad_sh0.v[3u * v + c] = y[0] * drgb[c];
     for (uint k = 1u; k <= stride; ++k) {
-        uint base = (v * stride + (k - 1u)) * 3u;
         vec3 gk = k <= nc ? y[k] * drgb : vec3(0.0);
-        for (uint c = 0u; c < 3u; ++c) B.grad_shs.v[base + c] = gk[c];
+        for (uint c = 0u; c < 3u; ++c)
+            B.grad_shs.v[shs_index(v, 3u * (k - 1u) + c, 3u * stride)] = gk[c];
     }
 
     // Normal n = ∇/|∇| of the centre gradient ∇ (zero gradient where |∇|² ≤ 1e-30).

@@ -6,6 +6,7 @@
 #include "raster_params.glsl"
 #include "morton.glsl"
 #include "sh.glsl"
+#include "sh_layout.glsl"
 #include "trilinear.glsl"
 #include "ray_aabb.glsl"
 layout(local_size_x = 256) in;
@@ -122,10 +123,11 @@ void main() {
     sh_basis(normalize(centre), degree, y);
     vec3 rgb = y[0] * vec3(P.sh0.v[3u * v], P.sh0.v[3u * v + 1u], P.sh0.v[3u * v + 2u]);
     uint nc = (degree + 1u) * (degree + 1u) - 1u;  // active (degree may be raised during training)
-    uint stride = P.shs_stride;                        // stored per voxel
+    uint w = 3u * P.shs_stride;                        // values stored per voxel
     for (uint k = 1u; k <= nc; ++k) {
-        uint base = (v * stride + (k - 1u)) * 3u;
-        rgb += y[k] * vec3(P.shs.v[base], P.shs.v[base + 1u], P.shs.v[base + 2u]);
+        uint e = 3u * (k - 1u);
+        rgb += y[k] * vec3(P.shs.v[shs_index(v, e, w)], P.shs.v[shs_index(v, e + 1u, w)],
+                           P.shs.v[shs_index(v, e + 2u, w)]);
     }
     rgb = max(rgb + 0.5, vec3(0.0));
 

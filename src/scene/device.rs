@@ -2,7 +2,7 @@
 //! updates, uploaded from and downloaded into a [`Scene`].
 
 use crate::gpu::{Buffer, Context};
-use crate::scene::Scene;
+use crate::scene::{shs_device_len, shs_from_device, shs_to_device, Scene};
 use crate::{Error, Result};
 
 /// A scene's parameters on the device.
@@ -12,6 +12,7 @@ pub struct SceneGpu {
     pub(crate) corners: Buffer,
     pub(crate) geo: Buffer,
     pub(crate) sh0: Buffer,
+    /// In the blocked device layout ([`crate::scene::SHS_BLOCK`]).
     pub(crate) shs: Buffer,
     pub voxels: u32,
     pub grid_points: u32,
@@ -33,13 +34,15 @@ impl SceneGpu {
         let level: Vec<u32> = scene.octlevel.iter().map(|&l| l as u32).collect();
         let corners: Vec<u32> = scene.corners.iter().flatten().copied().collect();
         let sh0: Vec<f32> = scene.sh0.iter().flatten().copied().collect();
+        let w = scene.shs_per_voxel() * 3;
+        let shs = shs_to_device(&scene.shs, scene.num_voxels(), w);
         Ok(SceneGpu {
             octpath: ctx.buffer_from("scene.octpath", &scene.octpath)?,
             level: ctx.buffer_from("scene.level", &level)?,
             corners: ctx.buffer_from("scene.corners", &corners)?,
             geo: ctx.buffer_from("scene.geo", &scene.geo)?,
             sh0: ctx.buffer_from("scene.sh0", &sh0)?,
-            shs: ctx.buffer_from("scene.shs", &scene.shs)?,
+            shs: ctx.buffer_from("scene.shs", &shs)?,
             voxels: scene.num_voxels() as u32,
             grid_points: scene.num_grid_points() as u32,
             max_level: scene.max_level(),
@@ -66,7 +69,9 @@ impl SceneGpu {
         let sh0: Vec<f32> = ctx.download(&self.sh0, 0, scene.sh0.len() * 3)?;
         scene.sh0 = sh0.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         if !scene.shs.is_empty() {
-            scene.shs = ctx.download(&self.shs, 0, scene.shs.len())?;
+            let (n, w) = (scene.num_voxels(), scene.shs_per_voxel() * 3);
+            let dev: Vec<f32> = ctx.download(&self.shs, 0, shs_device_len(n, w))?;
+            scene.shs = shs_from_device(&dev, n, w);
         }
         Ok(())
     }

@@ -31,6 +31,56 @@ pub fn sh_coeffs(degree: u32) -> usize {
     ((degree + 1) * (degree + 1)) as usize
 }
 
+/// Voxels per block of the device layout of the higher-order SH coefficients (and their
+/// gradients and Adam moments). The host keeps `shs` per voxel (`[N][coeffs][3]`); on the
+/// device, value `e` (0..w, w = 3·coeffs) of voxel `v` sits at
+/// `(v / 8)·8w + 8e + v % 8` ([`shs_device_index`]): the 8 voxels of a block interleave
+/// their values, so a kernel with a thread per voxel reads and writes whole cache lines
+/// across a subgroup instead of a 180-byte stride per lane (lavapipe turns each such
+/// access into a gather that touches 8 lines: preprocess and the per-voxel backward
+/// spent about a third of their time there). The buffers hold [`shs_device_len`]
+/// values: the last block is padded with zeros, which the kernels never read and Adam
+/// leaves at zero (their gradient stays zero).
+pub const SHS_BLOCK: usize = 8;
+
+/// Index of value `e` of voxel `v` in the device layout of `w` values per voxel
+/// (glsl/lib/sh.glsl `shs_index`).
+pub fn shs_device_index(v: usize, e: usize, w: usize) -> usize {
+    (v / SHS_BLOCK) * SHS_BLOCK * w + SHS_BLOCK * e + v % SHS_BLOCK
+}
+
+/// Values in the device layout of `n` voxels with `w` values each (whole blocks).
+pub fn shs_device_len(n: usize, w: usize) -> usize {
+    n.div_ceil(SHS_BLOCK) * SHS_BLOCK * w
+}
+
+/// Per-voxel values (`n` voxels × `w`) in the device layout (zero padding).
+pub fn shs_to_device(host: &[f32], n: usize, w: usize) -> Vec<f32> {
+    assert_eq!(host.len(), n * w, "shs_to_device: {n} voxels of {w} values");
+    let mut out = vec![0.0; shs_device_len(n, w)];
+    for v in 0..n {
+        for e in 0..w {
+            out[shs_device_index(v, e, w)] = host[v * w + e];
+        }
+    }
+    out
+}
+
+/// The per-voxel values of `n` voxels × `w` from the device layout.
+pub fn shs_from_device(dev: &[f32], n: usize, w: usize) -> Vec<f32> {
+    assert!(
+        dev.len() >= shs_device_len(n, w),
+        "shs_from_device: short buffer"
+    );
+    let mut out = vec![0.0; n * w];
+    for v in 0..n {
+        for e in 0..w {
+            out[v * w + e] = dev[shs_device_index(v, e, w)];
+        }
+    }
+    out
+}
+
 /// Morton code of voxel index `(i, j, k)` at `level` (paper Listing 1).
 pub fn octpath_from_ijk(ijk: [u32; 3], level: u32) -> u64 {
     debug_assert!((1..=MAX_LEVEL).contains(&level));
@@ -470,4 +520,35 @@ fn check_voxels(octpath: &[u64], octlevel: &[u8]) -> Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The device layout is a bijection onto the padded buffer, blocks of 8 voxels
+    /// interleaved value by value, and converts back exactly.
+    #[test]
+    fn shs_device_layout() {
+        for (n, w) in [(1, 45), (7, 9), (8, 24), (9, 45), (33, 3)] {
+            let host: Vec<f32> = (0..n * w).map(|i| i as f32 + 0.5).collect();
+            let dev = shs_to_device(&host, n, w);
+            assert_eq!(dev.len(), n.div_ceil(8) * 8 * w);
+            let mut seen = vec![false; dev.len()];
+            for v in 0..n {
+                for e in 0..w {
+                    let i = shs_device_index(v, e, w);
+                    assert!(!seen[i]);
+                    seen[i] = true;
+                    assert_eq!(dev[i], host[v * w + e]);
+                }
+            }
+            // Consecutive voxels of a block are consecutive values.
+            if n >= 2 {
+                assert_eq!(shs_device_index(1, 0, w), shs_device_index(0, 0, w) + 1);
+            }
+            assert_eq!(dev.iter().filter(|&&x| x == 0.0).count(), dev.len() - n * w);
+            assert_eq!(shs_from_device(&dev, n, w), host);
+        }
+    }
 }

@@ -142,7 +142,8 @@ pub fn point_lists(corners: &[u32], grid_points: u32) -> Result<(Vec<u32>, Vec<u
     Ok((off, list))
 }
 
-/// Gradients of the model parameters (same layouts as [`SceneGpu`]'s buffers), and the
+/// Gradients of the model parameters (same layouts as [`SceneGpu`]'s buffers: `shs` in
+/// the blocked device layout, [`Gradients::download_shs`] gives the host's), and the
 /// per-voxel subdivision priority Σ|α·∂L/∂α|, which accumulates over backward passes
 /// until [`Gradients::record_clear_priority`].
 pub struct Gradients {
@@ -175,7 +176,10 @@ impl Gradients {
         Ok(Gradients {
             geo: mk("grad.geo", scene.grid_points as u64)?,
             sh0: mk("grad.sh0", n * 3)?,
-            shs: mk("grad.shs", n * 3 * scene.shs_per_voxel as u64)?,
+            shs: mk(
+                "grad.shs",
+                crate::scene::shs_device_len(n as usize, 3 * scene.shs_per_voxel as usize) as u64,
+            )?,
             priority: mk("grad.priority", n)?,
             voxels: scene.voxels,
             grid_points: scene.grid_points,
@@ -201,6 +205,17 @@ impl Gradients {
             shs_per_voxel: 0,
             points: None,
         })
+    }
+
+    /// The SH coefficient gradients in the host layout (`[N][coeffs][3]`; the buffer
+    /// holds them in the blocked device layout, [`crate::scene::SHS_BLOCK`]).
+    pub fn download_shs(&self, ctx: &Context) -> Result<Vec<f32>> {
+        let (n, w) = (self.voxels as usize, 3 * self.shs_per_voxel as usize);
+        if n * w == 0 {
+            return Ok(Vec::new());
+        }
+        let dev: Vec<f32> = ctx.download(&self.shs, 0, crate::scene::shs_device_len(n, w))?;
+        Ok(crate::scene::shs_from_device(&dev, n, w))
     }
 
     /// Records zeroing the accumulated priority.

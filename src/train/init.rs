@@ -291,16 +291,34 @@ impl Trainer {
         state: Option<&[Vec<f32>]>,
     ) -> Result<[Moments; 3]> {
         let n = scene.voxels as u64;
+        let w = 3 * scene.shs_per_voxel as usize;
         let mom = [
             Moments::new(ctx, "geo", scene.grid_points as u64)?,
             Moments::new(ctx, "sh0", n * 3)?,
-            Moments::new(ctx, "shs", n * 3 * scene.shs_per_voxel as u64)?,
+            Moments::new(
+                ctx,
+                "shs",
+                crate::scene::shs_device_len(n as usize, w) as u64,
+            )?,
         ];
         if let Some(state) = state {
             for (i, m) in mom.iter().enumerate() {
                 if !state[2 * i].is_empty() {
-                    ctx.upload(&m.m, 0, &state[2 * i])?;
-                    ctx.upload(&m.v, 0, &state[2 * i + 1])?;
+                    for (buf, host) in [(&m.m, &state[2 * i]), (&m.v, &state[2 * i + 1])] {
+                        if i == 2 {
+                            // The SH moments in the blocked device layout.
+                            if host.len() != n as usize * w {
+                                return Err(Error::Invalid(format!(
+                                    "optimizer state: {} SH moments for {n} voxels of {w}",
+                                    host.len()
+                                )));
+                            }
+                            let dev = crate::scene::shs_to_device(host, n as usize, w);
+                            ctx.upload(buf, 0, &dev)?;
+                        } else {
+                            ctx.upload(buf, 0, host)?;
+                        }
+                    }
                 }
             }
         }

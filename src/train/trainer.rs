@@ -348,7 +348,11 @@ impl Trainer {
                     &self.scene.shs,
                     &self.grads.shs,
                     &self.mom[2],
-                    self.scene.voxels as u64 * 3 * self.scene.shs_per_voxel as u64,
+                    // The whole blocked device layout (padding stays zero).
+                    crate::scene::shs_device_len(
+                        self.scene.voxels as usize,
+                        3 * self.scene.shs_per_voxel as usize,
+                    ) as u64,
                     cfg.lr_shs,
                 ),
             ];
@@ -508,11 +512,21 @@ impl Trainer {
     /// Adam moments and iteration, for resuming: (geo m, geo v, sh0 m, sh0 v, shs m, shs v).
     pub fn optimizer_state(&self) -> Result<Vec<Vec<f32>>> {
         let counts = self.group_counts();
+        let (n, w) = (
+            self.scene.voxels as usize,
+            3 * self.scene.shs_per_voxel as usize,
+        );
         let mut out = Vec::new();
-        for (m, &c) in self.mom.iter().zip(&counts) {
+        for (i, (m, &c)) in self.mom.iter().zip(&counts).enumerate() {
             for b in [&m.m, &m.v] {
                 out.push(if c == 0 {
                     Vec::new()
+                } else if i == 2 {
+                    // The SH moments from the blocked device layout.
+                    let dev: Vec<f32> =
+                        self.ctx
+                            .download(b, 0, crate::scene::shs_device_len(n, w))?;
+                    crate::scene::shs_from_device(&dev, n, w)
                 } else {
                     self.ctx.download(b, 0, c)?
                 });
@@ -529,10 +543,20 @@ impl Trainer {
                 "optimizer state does not match the model's parameter counts".into(),
             ));
         }
+        let (n, w) = (
+            self.scene.voxels as usize,
+            3 * self.scene.shs_per_voxel as usize,
+        );
         for (i, m) in self.mom.iter().enumerate() {
             if counts[i] > 0 {
-                self.ctx.upload(&m.m, 0, &state[2 * i])?;
-                self.ctx.upload(&m.v, 0, &state[2 * i + 1])?;
+                for (buf, host) in [(&m.m, &state[2 * i]), (&m.v, &state[2 * i + 1])] {
+                    if i == 2 {
+                        let dev = crate::scene::shs_to_device(host, n, w);
+                        self.ctx.upload(buf, 0, &dev)?;
+                    } else {
+                        self.ctx.upload(buf, 0, host)?;
+                    }
+                }
             }
         }
         Ok(())

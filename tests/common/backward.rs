@@ -129,11 +129,7 @@ pub fn gpu_grads_walk(
     GpuGrads {
         geo: ctx.download(&g.geo, 0, scene.num_grid_points()).unwrap(),
         sh0: ctx.download(&g.sh0, 0, n * 3).unwrap(),
-        shs: if scene.shs.is_empty() {
-            Vec::new()
-        } else {
-            ctx.download(&g.shs, 0, scene.shs.len()).unwrap()
-        },
+        shs: g.download_shs(ctx).unwrap(),
         priority: ctx.download(&g.priority, 0, n).unwrap(),
         max_tile: stats.max_tile_entries,
     }

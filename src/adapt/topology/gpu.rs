@@ -135,6 +135,9 @@ pub(super) struct GatherPush {
     pub(super) dst: u64,
     pub(super) rows: u32,
     pub(super) width: u32,
+    /// 1: both sides in the blocked SH layout ([`crate::scene::SHS_BLOCK`]).
+    pub(super) blocked: u32,
+    pub(super) pad: u32,
 }
 push_constants!(GatherPush, kernels::ADAPT_GATHER_ROWS);
 

@@ -51,7 +51,9 @@ use std::time::Instant;
 use crate::error::{Error, Result};
 use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Memory, Timestamps};
 use crate::scan::SCAN_TILE;
-use crate::scene::{Scene, SceneGpu, MAX_LEVEL, MAX_VOXELS};
+use crate::scene::{
+    shs_device_len, shs_from_device, shs_to_device, Scene, SceneGpu, MAX_LEVEL, MAX_VOXELS,
+};
 use crate::sort::{Count, RadixSort, SortBuffers, Sorted};
 
 mod gpu;
@@ -86,7 +88,8 @@ pub struct TopologyStats {
 }
 
 /// Adam moments of a scene on the device, laid out like [`Moments`]: [geo m, geo v,
-/// sh0 m, sh0 v, shs m, shs v].
+/// sh0 m, sh0 v, shs m, shs v], except that the SH moments (like the SH coefficients)
+/// are in the blocked device layout ([`crate::scene::SHS_BLOCK`]).
 pub type DeviceMoments<'a> = [&'a Buffer; 6];
 
 /// The result of [`Topology::apply_device`].
@@ -178,10 +181,14 @@ impl Topology {
             None => None,
             Some(m) => {
                 let mut v = Vec::with_capacity(6);
+                let (n, w) = (scene.num_voxels(), scene.shs_per_voxel() * 3);
                 for (k, data) in m.iter().enumerate() {
                     let name = format!("topology.moments{k}");
                     v.push(if data.is_empty() {
                         ctx.zeroed_buffer(&name, 4)?
+                    } else if k >= 4 {
+                        // The SH moments in the blocked device layout.
+                        ctx.buffer_from(&name, &shs_to_device(data, n, w))?
                     } else {
                         ctx.buffer_from(&name, data)?
                     });
@@ -203,9 +210,12 @@ impl Topology {
                 let nc = out.shs_per_voxel() * 3;
                 let lens = [g, g, 3 * n, 3 * n, n * nc, n * nc];
                 let mut v = Vec::with_capacity(6);
-                for (buf, len) in b.iter().zip(lens) {
+                for (k, (buf, len)) in b.iter().zip(lens).enumerate() {
                     v.push(if len == 0 {
                         Vec::new()
+                    } else if k >= 4 {
+                        let dev: Vec<f32> = ctx.download(buf, 0, shs_device_len(n, nc))?;
+                        shs_from_device(&dev, n, nc)
                     } else {
                         ctx.download(buf, 0, len)?
                     });
@@ -251,7 +261,8 @@ impl Topology {
             )));
         }
         if let Some(m) = moments {
-            let need = [g, g, 3 * n, 3 * n, n * nc, n * nc];
+            let sh = shs_device_len(n, nc);
+            let need = [g, g, 3 * n, 3 * n, sh, sh];
             if let Some(k) = (0..6).find(|&k| m[k].size() < need[k] as u64 * 4) {
                 return Err(Error::Invalid(format!(
                     "topology: moment buffer {k} holds {} bytes, the scene needs {}",
@@ -365,7 +376,10 @@ impl Topology {
         let new_octpath = ctx.buffer("scene.octpath", nn * 8, Memory::Device)?;
         let new_level = ctx.buffer("scene.level", nn * 4, Memory::Device)?;
         let new_sh0 = ctx.buffer("scene.sh0", nn * 12, Memory::Device)?;
-        let new_shs = ctx.buffer("scene.shs", (nn * nc as u64).max(1) * 4, Memory::Device)?;
+        // The SH and its moments in the blocked device layout: zeroed, so the padding of
+        // the last block is zero.
+        let sh_len = shs_device_len(new_n, nc) as u64;
+        let new_shs = ctx.zeroed_buffer("scene.shs", sh_len * 4)?;
         let new_sh_mom: Option<[Buffer; 4]> = match moments {
             None => None,
             Some(_) => {
@@ -374,8 +388,8 @@ impl Topology {
                 Some([
                     mk("sh0.adam-m", nn * 3)?,
                     mk("sh0.adam-v", nn * 3)?,
-                    mk("shs.adam-m", nn * nc as u64)?,
-                    mk("shs.adam-v", nn * nc as u64)?,
+                    ctx.zeroed_buffer("shs.adam-m", sh_len * 4)?,
+                    ctx.zeroed_buffer("shs.adam-v", sh_len * 4)?,
                 ])
             }
         };
@@ -421,19 +435,20 @@ impl Topology {
                 },
                 new_n as u32,
             );
-            let mut rows = vec![(&gpu.sh0, &new_sh0, 3u32)];
+            // (source, destination, values per voxel, blocked SH layout)
+            let mut rows = vec![(&gpu.sh0, &new_sh0, 3u32, 0u32)];
             if nc > 0 {
-                rows.push((&gpu.shs, &new_shs, nc as u32));
+                rows.push((&gpu.shs, &new_shs, nc as u32, 1));
             }
             if let (Some(m), Some(nm)) = (moments, new_sh_mom.as_ref()) {
-                rows.push((m[2], &nm[0], 3));
-                rows.push((m[3], &nm[1], 3));
+                rows.push((m[2], &nm[0], 3, 0));
+                rows.push((m[3], &nm[1], 3, 0));
                 if nc > 0 {
-                    rows.push((m[4], &nm[2], nc as u32));
-                    rows.push((m[5], &nm[3], nc as u32));
+                    rows.push((m[4], &nm[2], nc as u32, 1));
+                    rows.push((m[5], &nm[3], nc as u32, 1));
                 }
             }
-            for (from, to, width) in rows {
+            for (from, to, width, blocked) in rows {
                 gather.dispatch_1d(
                     cmd,
                     &GatherPush {
@@ -442,6 +457,8 @@ impl Topology {
                         dst: to.address(),
                         rows: new_n as u32,
                         width,
+                        blocked,
+                        pad: 0,
                     },
                     new_n as u32 * width,
                 );
