@@ -154,8 +154,8 @@ void main() {
     uint status_base = tile * RADIX;
     for (uint q = 0u; q < DPT; q++) {
         uint d = t + q * WG;
-        atomicExchange(pc.status.v[status_base + d],
-                       lb_pack(tag, tile == 0u ? LB_INCLUSIVE : LB_AGGREGATE, count[q]));
+        lb_store(pc.status, status_base + d,
+                 lb_pack(tag, tile == 0u ? LB_INCLUSIVE : LB_AGGREGATE, count[q]));
     }
     uint before[DPT];
     bool done[DPT];
@@ -172,10 +172,10 @@ void main() {
                 pending[q] = false;
                 if (!done[q]) {
                     uint idx = j * RADIX + t + q * WG;
-                    uint64_t w = atomicAdd(pc.status.v[idx], 0ul);
+                    uint64_t w = lb_load(pc.status, idx);
                     uint f = lb_flag(w, tag);
                     for (uint s = 0u; f == 0u && s < pc.spin_limit; s++) {
-                        w = atomicAdd(pc.status.v[idx], 0ul);
+                        w = lb_load(pc.status, idx);
                         f = lb_flag(w, tag);
                     }
                     if (f == 0u) {
@@ -215,8 +215,7 @@ void main() {
         }
         for (uint q = 0u; q < DPT; q++) {
             uint d = t + q * WG;
-            atomicExchange(pc.status.v[status_base + d],
-                           lb_pack(tag, LB_INCLUSIVE, before[q] + count[q]));
+            lb_store(pc.status, status_base + d, lb_pack(tag, LB_INCLUSIVE, before[q] + count[q]));
         }
     }
     uint hist_base = ST_HIST + pc.pass_index * RADIX;
