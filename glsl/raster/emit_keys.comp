@@ -14,18 +14,33 @@ layout(push_constant) uniform Push {
     FrameParams P;
 } pc;
 
-void main() {
-    FrameParams P = pc.P;
-    uint i = linear_group_id() * 256u + gl_LocalInvocationID.x;
-    if (i >= P.stats.v[STAT_USED]) return;
+shared uint s_range[2];
 
-    // Last voxel whose offset is <= i (it has a non-zero count).
-    uint lo = 0u, hi = P.voxels;  // invariant: offsets[lo] <= i < offsets[hi] (hi = n: inf)
+// Last voxel whose offset is <= i (it has a non-zero count), given
+// offsets[lo] <= i < offsets[hi] (hi = voxels: infinity).
+uint find_voxel(FrameParams P, uint i, uint lo, uint hi) {
     while (hi - lo > 1u) {
         uint mid = (lo + hi) >> 1u;
         if (P.offsets.v[mid] <= i) lo = mid; else hi = mid;
     }
-    uint v = lo;
+    return lo;
+}
+
+void main() {
+    FrameParams P = pc.P;
+    uint used = P.stats.v[STAT_USED];
+    uint i0 = linear_group_id() * 256u;
+    if (i0 >= used) return;  // the whole workgroup
+    // Two invocations find the voxels of the group's first and last entries; every
+    // invocation then searches only between them (at most 256 voxels: every voxel owns
+    // at least one entry), instead of each walking a chain of log2(voxels) dependent
+    // loads from the whole offset array.
+    uint l = gl_LocalInvocationID.x;
+    if (l < 2u) s_range[l] = find_voxel(P, l == 0u ? i0 : min(i0 + 255u, used - 1u), 0u, P.voxels);
+    barrier();
+    uint i = i0 + l;
+    if (i >= used) return;
+    uint v = find_voxel(P, i, s_range[0], min(s_range[1] + 1u, P.voxels));
     uint r = i - P.offsets.v[v];
 
     uvec2 box = uvec2(P.bbox.v[2u * v], P.bbox.v[2u * v + 1u]);
