@@ -5,6 +5,31 @@ use crate::gpu::{Buffer, Context};
 use crate::scene::{shs_device_len, shs_from_device, shs_to_device, Scene};
 use crate::{Error, Result};
 
+/// Uploads per-voxel SH values (`n` voxels × `w`, host layout `[N][w]`) into `buf` in
+/// the blocked device layout ([`crate::scene::SHS_BLOCK`]).
+pub(crate) fn upload_shs(
+    ctx: &Context,
+    buf: &Buffer,
+    host: &[f32],
+    n: usize,
+    w: usize,
+) -> Result<()> {
+    if host.len() != n * w {
+        return Err(Error::Invalid(format!(
+            "{} SH values for {n} voxels of {w} each",
+            host.len()
+        )));
+    }
+    ctx.upload(buf, 0, &shs_to_device(host, n, w))
+}
+
+/// Downloads `n` voxels × `w` SH values from `buf` (blocked device layout) in the host
+/// layout `[N][w]`.
+pub(crate) fn download_shs(ctx: &Context, buf: &Buffer, n: usize, w: usize) -> Result<Vec<f32>> {
+    let dev: Vec<f32> = ctx.download(buf, 0, shs_device_len(n, w))?;
+    Ok(shs_from_device(&dev, n, w))
+}
+
 /// A scene's parameters on the device.
 pub struct SceneGpu {
     pub(crate) octpath: Buffer,
@@ -70,8 +95,7 @@ impl SceneGpu {
         scene.sh0 = sh0.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
         if !scene.shs.is_empty() {
             let (n, w) = (scene.num_voxels(), scene.shs_per_voxel() * 3);
-            let dev: Vec<f32> = ctx.download(&self.shs, 0, shs_device_len(n, w))?;
-            scene.shs = shs_from_device(&dev, n, w);
+            scene.shs = download_shs(ctx, &self.shs, n, w)?;
         }
         Ok(())
     }

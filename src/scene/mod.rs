@@ -16,6 +16,7 @@ pub mod checkpoint;
 mod device;
 pub mod quantize;
 pub use device::SceneGpu;
+pub(crate) use device::{download_shs, upload_shs};
 
 use crate::{Error, Result};
 

@@ -214,8 +214,7 @@ impl Gradients {
         if n * w == 0 {
             return Ok(Vec::new());
         }
-        let dev: Vec<f32> = ctx.download(&self.shs, 0, crate::scene::shs_device_len(n, w))?;
-        Ok(crate::scene::shs_from_device(&dev, n, w))
+        crate::scene::download_shs(ctx, &self.shs, n, w)
     }
 
     /// Records zeroing the accumulated priority.

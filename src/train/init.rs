@@ -250,7 +250,7 @@ impl Trainer {
         let float_atomics = std::env::var("SVRASTER_NO_FLOAT_ATOMICS").is_err();
         let reduction = Reduction::choose(ctx, float_atomics, cfg.deterministic);
         let grads = Gradients::with_reduction(ctx, &scene, reduction)?;
-        let mom = Self::moments(ctx, &scene, None)?;
+        let mom = Self::moments(ctx, &scene)?;
         let views = TrainViews::upload(ctx, train, TrainViews::default_chunk_bytes(ctx))?;
         let schedule = cfg.schedule();
         Ok(Trainer {
@@ -283,16 +283,12 @@ impl Trainer {
         })
     }
 
-    /// Adam moments for `scene`'s parameter groups: zero, or `state` (the six arrays of
-    /// [`Trainer::optimizer_state`]).
-    pub(super) fn moments(
-        ctx: &Context,
-        scene: &SceneGpu,
-        state: Option<&[Vec<f32>]>,
-    ) -> Result<[Moments; 3]> {
+    /// Zero Adam moments for `scene`'s parameter groups (a resumed run then restores
+    /// them with [`Trainer::set_optimizer_state`]).
+    pub(super) fn moments(ctx: &Context, scene: &SceneGpu) -> Result<[Moments; 3]> {
         let n = scene.voxels as u64;
         let w = 3 * scene.shs_per_voxel as usize;
-        let mom = [
+        Ok([
             Moments::new(ctx, "geo", scene.grid_points as u64)?,
             Moments::new(ctx, "sh0", n * 3)?,
             Moments::new(
@@ -300,28 +296,6 @@ impl Trainer {
                 "shs",
                 crate::scene::shs_device_len(n as usize, w) as u64,
             )?,
-        ];
-        if let Some(state) = state {
-            for (i, m) in mom.iter().enumerate() {
-                if !state[2 * i].is_empty() {
-                    for (buf, host) in [(&m.m, &state[2 * i]), (&m.v, &state[2 * i + 1])] {
-                        if i == 2 {
-                            // The SH moments in the blocked device layout.
-                            if host.len() != n as usize * w {
-                                return Err(Error::Invalid(format!(
-                                    "optimizer state: {} SH moments for {n} voxels of {w}",
-                                    host.len()
-                                )));
-                            }
-                            let dev = crate::scene::shs_to_device(host, n as usize, w);
-                            ctx.upload(buf, 0, &dev)?;
-                        } else {
-                            ctx.upload(buf, 0, host)?;
-                        }
-                    }
-                }
-            }
-        }
-        Ok(mom)
+        ])
     }
 }

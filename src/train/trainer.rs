@@ -522,11 +522,8 @@ impl Trainer {
                 out.push(if c == 0 {
                     Vec::new()
                 } else if i == 2 {
-                    // The SH moments from the blocked device layout.
-                    let dev: Vec<f32> =
-                        self.ctx
-                            .download(b, 0, crate::scene::shs_device_len(n, w))?;
-                    crate::scene::shs_from_device(&dev, n, w)
+                    // The SH moments, from the blocked device layout.
+                    crate::scene::download_shs(&self.ctx, b, n, w)?
                 } else {
                     self.ctx.download(b, 0, c)?
                 });
@@ -551,8 +548,7 @@ impl Trainer {
             if counts[i] > 0 {
                 for (buf, host) in [(&m.m, &state[2 * i]), (&m.v, &state[2 * i + 1])] {
                     if i == 2 {
-                        let dev = crate::scene::shs_to_device(host, n, w);
-                        self.ctx.upload(buf, 0, &dev)?;
+                        crate::scene::upload_shs(&self.ctx, buf, host, n, w)?;
                     } else {
                         self.ctx.upload(buf, 0, host)?;
                     }

@@ -52,7 +52,7 @@ use crate::error::{Error, Result};
 use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Memory, Timestamps};
 use crate::scan::SCAN_TILE;
 use crate::scene::{
-    shs_device_len, shs_from_device, shs_to_device, Scene, SceneGpu, MAX_LEVEL, MAX_VOXELS,
+    download_shs, shs_device_len, shs_to_device, Scene, SceneGpu, MAX_LEVEL, MAX_VOXELS,
 };
 use crate::sort::{Count, RadixSort, SortBuffers, Sorted};
 
@@ -214,8 +214,7 @@ impl Topology {
                     v.push(if len == 0 {
                         Vec::new()
                     } else if k >= 4 {
-                        let dev: Vec<f32> = ctx.download(buf, 0, shs_device_len(n, nc))?;
-                        shs_from_device(&dev, n, nc)
+                        download_shs(&ctx, buf, n, nc)?
                     } else {
                         ctx.download(buf, 0, len)?
                     });
