@@ -56,16 +56,28 @@ void step1(float g, inout float p, inout float m, inout float v, inout bool bad,
     }
 }
 
+// Four consecutive floats as two 64-bit words: llvmpipe splits a vec4 access into four
+// 32-bit gathers (scatters) across the lanes, a pair of 64-bit words into two.
+vec4 load4(F32s b, uint q) {
+    U64s u = U64s(uint64_t(b));
+    return vec4(uintBitsToFloat(unpackUint2x32(u.v[2u * q])), uintBitsToFloat(unpackUint2x32(u.v[2u * q + 1u])));
+}
+void store4(F32s b, uint q, vec4 x) {
+    U64s u = U64s(uint64_t(b));
+    u.v[2u * q] = packUint2x32(floatBitsToUint(x.xy));
+    u.v[2u * q + 1u] = packUint2x32(floatBitsToUint(x.zw));
+}
+
 void main() {
     uint q = linear_group_id() * 256u + gl_LocalInvocationID.x;
     uint first = 4u * q;
     if (first >= pc.count) return;
     bool bad = false;
     if (first + 4u <= pc.count) {
-        vec4 g = V4s(pc.grad).v[q];
-        vec4 p = V4s(pc.param).v[q];
-        vec4 m = V4s(pc.m).v[q];
-        vec4 v = V4s(pc.v).v[q];
+        vec4 g = load4(pc.grad, q);
+        vec4 p = load4(pc.param, q);
+        vec4 m = load4(pc.m, q);
+        vec4 v = load4(pc.v, q);
         bool any_write = false;
         for (int c = 0; c < 4; ++c) {
             float pc_ = p[c], mc = m[c], vc = v[c];
@@ -79,9 +91,9 @@ void main() {
             any_write = any_write || w;
         }
         if (any_write) {
-            V4s(pc.param).v[q] = p;
-            V4s(pc.m).v[q] = m;
-            V4s(pc.v).v[q] = v;
+            store4(pc.param, q, p);
+            store4(pc.m, q, m);
+            store4(pc.v, q, v);
         }
     } else {
         for (uint i = first; i < pc.count; ++i) {
