@@ -12,9 +12,10 @@
 // because α ≤ 0.99999 and the forward stopped at T < 1e-4. r_k is the per-point RGB loss
 // λ_R·|c_k - gt|²/3; u_k = ∂L_dist/∂w_k uses W_k = 1 - T_k and the forward's Σ w·m.
 //
-// Each subgroup visits only the staged entries that can matter to its pixels (rectangle,
-// sign octant, before its last contributor: tile_walk.glsl), back to front. Per visited
-// entry the lanes reduce the voxel's 15 gradient components with a transposed
+// Each invocation handles two pixels (tile_walk.glsl's walk_pixel); each subgroup visits
+// only the staged entries that can matter to its pixels (rectangle, sign octant, before
+// its last contributor: tile_walk.glsl), back to front. Per visited entry the lanes add
+// their two pixels' gradients, then reduce the voxel's 15 gradient components with a transposed
 // (reduce-scatter) butterfly of subgroup shuffles, after which every lane owns the
 // complete sum of one or two components and adds them with a single global float
 // atomic instruction across the subgroup (a CAS loop where the device lacks them)
@@ -38,7 +39,7 @@
 #include "entry_stage.glsl"
 #include "tile_walk.glsl"
 #include "backward_params.glsl"
-layout(local_size_x = 256) in;
+layout(local_size_x = 128) in;  // WALK_WG
 
 layout(push_constant) uniform Push {
     FrameParams P;
@@ -122,50 +123,190 @@ uint record_index(Entry e) {
 }
 #endif
 
+// One pixel's backward state (carried between chunk dispatches in `bstate`).
+struct BPx {
+    uvec2 pix;
+    uint p;
+    bool inside;
+    vec3 rd, inv_rd;
+    uint sign;
+    float t_near;
+    vec3 dC, dN, gt;  // loss gradients of the pixel (render resolution), target colour
+    float dD, mtot;
+    uint last;
+    float t_last;
+    float T, A, wa, ma;
+};
+
+BPx bpx_init(FrameParams P, BackParams B, uvec2 lp) {
+    BPx s;
+    s.pix = gl_WorkGroupID.xy * 16u + lp;
+    uint W = P.render_size.x, H = P.render_size.y;
+    s.inside = s.pix.x < W && s.pix.y < H;
+    uint npix = W * H;
+    uint p = s.inside ? s.pix.y * W + s.pix.x : 0u;
+    s.p = p;
+    float rd_norm;
+    pixel_ray(P, s.pix, s.rd, rd_norm);
+    s.inv_rd = 1.0 / s.rd;
+    s.sign = ray_sign_bits(s.rd);
+    s.t_near = P.near * rd_norm;
+    s.dC = vec3(0.0);
+    s.dN = vec3(0.0);
+    s.gt = vec3(0.0);
+    s.dD = 0.0;
+    s.mtot = 0.0;
+    s.last = 0u;
+    s.t_last = 1.0;
+    s.T = 1.0;
+    s.A = 0.0;
+    s.wa = 0.0;
+    s.ma = 0.0;
+    if (s.inside) {
+        s.dC = vec3(B.dimg.v[DI_R * npix + p], B.dimg.v[DI_G * npix + p], B.dimg.v[DI_B * npix + p]);
+        s.dD = B.dimg.v[DI_DEPTH * npix + p] / rd_norm;  // out depth = ray distance / rd_norm
+        s.dN = vec3(B.dimg.v[DI_NX * npix + p], B.dimg.v[DI_NY * npix + p], B.dimg.v[DI_NZ * npix + p]);
+        s.gt = vec3(B.dimg.v[DI_GTR * npix + p], B.dimg.v[DI_GTG * npix + p], B.dimg.v[DI_GTB * npix + p]);
+        s.mtot = P.aux.v[AUX_M * npix + p];
+        s.last = P.last.v[p];
+        s.t_last = P.aux.v[AUX_TLAST * npix + p];
+        if (pc.chunk + 1u == B.chunks) {
+            s.T = P.aux.v[AUX_T * npix + p];
+            s.A = B.dimg.v[DI_T * npix + p];
+        } else {
+            s.T = B.bstate.v[BS_T * npix + p];
+            s.A = B.bstate.v[BS_A * npix + p];
+            s.wa = B.bstate.v[BS_WA * npix + p];
+            s.ma = B.bstate.v[BS_MA * npix + p];
+        }
+    }
+    return s;
+}
+
+void bpx_store(FrameParams P, BackParams B, BPx s) {
+    if (!s.inside) return;
+    uint npix = P.render_size.x * P.render_size.y;
+    uint p = s.p;
+    B.bstate.v[BS_T * npix + p] = s.T;
+    B.bstate.v[BS_A * npix + p] = s.A;
+    B.bstate.v[BS_WA * npix + p] = s.wa;
+    B.bstate.v[BS_MA * npix + p] = s.ma;
+}
+
+// Backward of entry `e` (sorted index idx) for pixel state `s` when `need` (the entry
+// is of the pixel's octant, its rectangle holds the pixel and it is before the pixel's
+// last contributor): adds the pixel's gradient components to red (VG_* layout) and
+// steps the state to the front of the entry. Uniform control flow. Returns 1 for a
+// ray–voxel crossing, 2 for a contribution too (work counters).
+uint bpx_step(inout BPx s, Entry e, uint idx, bool need, inout float red[16]) {
+    uint work = 0u;
+    float lam_dist = pc.B.lambda_dist, lam_r = pc.B.lambda_r;
+    // Recompute the forward quantities of this entry (identically to composite).
+    vec4 cs = e.cs;
+    float h = 0.5 * cs.w;
+    vec2 ab = ray_aabb(cs.xyz - h, cs.xyz + h, s.rd, s.inv_rd);
+    float a = max(ab.x, s.t_near), b = ab.y;
+    need = need && a <= b;
+    if (!need) return 0u;
+    work = 1u;
+    precise float step_sz = (b - a) * (1.0 / float(N_SAMP));
+    vec3 vmin = cs.xyz - h;
+    float inv_size = 1.0 / cs.w;
+    precise float vol = 0.0;  // as in the composite (bit-identical α)
+    float la[N_SAMP], lv[N_SAMP], rho[N_SAMP];
+    vec3 qs[N_SAMP];
+    for (int k = 0; k < N_SAMP; ++k) {
+        precise float t = a + (float(k) + 0.5) * step_sz;
+        precise vec3 qk = (t * s.rd - vmin) * inv_size;
+        qs[k] = qk;
+        rho[k] = trilinear(e.g, qs[k]);
+        lv[k] = STEP_SZ_SCALE * step_sz * explin(rho[k]);
+        vol += lv[k];
+        la[k] = min(MAX_ALPHA, alpha_of_depth(lv[k]));
+    }
+    precise float raw_alpha = alpha_of_depth(vol);
+    float alpha = min(MAX_ALPHA, raw_alpha);
+    if (alpha < MIN_ALPHA) return work;
+    work = 2u;
+    vec3 col = e.rgb;
+    vec3 nrm = e.nrm;
+    // The last contributor's T_k is stored by the forward: T / (1 - α) would amplify any
+    // difference in α by up to 1 / (1 - α) = 1e5. Before it, T_{k+1} ≥ 1e-4 (no early
+    // stop yet) bounds 1 / (1 - α_k) by 1e4·T_k.
+    float Tk = idx + 1u == s.last ? s.t_last : s.T / (1.0 - alpha);
+    float w = Tk * alpha;
+    float mid = 0.5 * (a + b);
+    float delta = b - a;
+    // ∂L_dist/∂w_k (segments are constants).
+    float Wk = 1.0 - Tk;
+    float Mk = s.mtot - s.ma - w * mid;
+    float u = lam_dist * (2.0 * (mid * Wk - Mk) + 2.0 * (s.ma - mid * s.wa) + (2.0 / 3.0) * w * delta);
+    vec3 diff = col - s.gt;
+    float r = lam_r * dot(diff, diff) * (1.0 / 3.0);
+    float lin = dot(s.dC, col) + dot(s.dN, nrm) + r + u;
+    float dval, dphi;
+#if N_SAMP == 1
+    dval = alpha * mid;
+    dphi = lin + s.dD * mid;
+#else
+    dval = 0.0;
+    float tr = 1.0;
+    float trs[N_SAMP];
+    for (int k = 0; k < N_SAMP; ++k) {
+        trs[k] = tr;
+        dval += tr * la[k] * (a + (float(k) + 0.5) * step_sz);
+        tr *= 1.0 - la[k];
+    }
+    dphi = lin;
+#endif
+    float phi = alpha * lin + s.dD * dval;
+    float g_alpha = Tk * (dphi - s.A);
+    red[VG_PRIO] += abs(alpha * g_alpha);
+    float g_vol = raw_alpha > MAX_ALPHA ? 0.0 : g_alpha * exp(-vol);
+    float d_lv[N_SAMP];
+    for (int k = 0; k < N_SAMP; ++k) d_lv[k] = g_vol;
+#if N_SAMP > 1
+    // Depth of a K-sample segment: dval = Σ_s tr_s la_s t_s.
+    float S = 0.0;
+    for (int k = N_SAMP - 1; k >= 0; --k) {
+        float t = a + (float(k) + 0.5) * step_sz;
+        float dla = trs[k] * (t - S);
+        float lraw = alpha_of_depth(lv[k]);
+        if (lraw <= MAX_ALPHA) d_lv[k] += Tk * s.dD * dla * exp(-lv[k]);
+        S = la[k] * t + (1.0 - la[k]) * S;
+    }
+#endif
+    for (int k = 0; k < N_SAMP; ++k) {
+        float coef = d_lv[k] * STEP_SZ_SCALE * step_sz * explin_grad(rho[k]);
+        vec3 q = qs[k], q0 = 1.0 - q;
+        for (uint c = 0u; c < 8u; ++c) {
+            float wt = ((c & 4u) != 0u ? q.x : q0.x) * ((c & 2u) != 0u ? q.y : q0.y) *
+                       ((c & 1u) != 0u ? q.z : q0.z);
+            red[VG_GEO + c] += coef * wt;
+        }
+    }
+    vec3 d_rgb = w * s.dC + (w * lam_r * (2.0 / 3.0)) * diff;
+    vec3 d_nrm = w * s.dN;
+    for (uint c = 0u; c < 3u; ++c) {
+        red[VG_RGB + c] += d_rgb[c];
+        red[VG_NRM + c] += d_nrm[c];
+    }
+    s.A = phi + (1.0 - alpha) * s.A;
+    s.wa += w;
+    s.ma += w * mid;
+    s.T = Tk;
+    return work;
+}
+
 void main() {
     FrameParams P = pc.P;
     BackParams B = pc.B;
     uint l = gl_LocalInvocationID.x;
     uint tiles_x = P.tiles.x;
     uint tile = gl_WorkGroupID.y * tiles_x + gl_WorkGroupID.x;
-    uvec2 pix = gl_WorkGroupID.xy * 16u + tile_pixel(l);
-    uint W = P.render_size.x, H = P.render_size.y;
-    bool inside = pix.x < W && pix.y < H;
-    uint npix = W * H;
-    uint p = inside ? pix.y * W + pix.x : 0u;
-
-    vec3 rd;
-    float rd_norm;
-    pixel_ray(P, pix, rd, rd_norm);
-    vec3 inv_rd = 1.0 / rd;
-    uint sign = ray_sign_bits(rd);
-    float t_near = P.near * rd_norm;
-
-    // Loss gradients of this pixel (render resolution).
-    vec3 dC = vec3(0.0), dN = vec3(0.0), gt = vec3(0.0);
-    float dD = 0.0, mtot = 0.0;
-    uint last = 0u;
-    float t_last = 1.0;
-    float T = 1.0, A = 0.0, wa = 0.0, ma = 0.0;
-    if (inside) {
-        dC = vec3(B.dimg.v[DI_R * npix + p], B.dimg.v[DI_G * npix + p], B.dimg.v[DI_B * npix + p]);
-        dD = B.dimg.v[DI_DEPTH * npix + p] / rd_norm;  // out depth = ray distance / rd_norm
-        dN = vec3(B.dimg.v[DI_NX * npix + p], B.dimg.v[DI_NY * npix + p], B.dimg.v[DI_NZ * npix + p]);
-        gt = vec3(B.dimg.v[DI_GTR * npix + p], B.dimg.v[DI_GTG * npix + p], B.dimg.v[DI_GTB * npix + p]);
-        mtot = P.aux.v[AUX_M * npix + p];
-        last = P.last.v[p];
-        t_last = P.aux.v[AUX_TLAST * npix + p];
-        if (pc.chunk + 1u == B.chunks) {
-            T = P.aux.v[AUX_T * npix + p];
-            A = B.dimg.v[DI_T * npix + p];
-        } else {
-            T = B.bstate.v[BS_T * npix + p];
-            A = B.bstate.v[BS_A * npix + p];
-            wa = B.bstate.v[BS_WA * npix + p];
-            ma = B.bstate.v[BS_MA * npix + p];
-        }
-    }
-    float lam_dist = B.lambda_dist, lam_r = B.lambda_r;
+    uvec2 lp0 = walk_pixel(0u), lp1 = walk_pixel(1u);
+    BPx s0 = bpx_init(P, B, lp0);
+    BPx s1 = bpx_init(P, B, lp1);
 
     uint chunk_size = B.chunk_size;
     uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
@@ -174,7 +315,7 @@ void main() {
     // Nothing after the tile's last contributor matters.
     if (l == 0u) s_last = 0u;
     barrier();
-    atomicMax(s_last, last);
+    atomicMax(s_last, max(s0.last, s1.last));
     barrier();
     end = min(end, max(s_last, start));
     uint n = end - start;
@@ -186,8 +327,8 @@ void main() {
 #endif
     uint sg = gl_SubgroupID;
     uvec2 org = gl_WorkGroupID.xy * 16u;
-    walk_setup(l, tile_pixel(l), sign, inside);
-    uint sg_last = subgroupMax(inside ? last : 0u);
+    walk_setup(l, lp0, lp1, s0.sign, s1.sign, s0.inside, s1.inside);
+    uint sg_last = subgroupMax(max(s0.inside ? s0.last : 0u, s1.inside ? s1.last : 0u));
     // Subgroups with a contributor in this chunk.
     if (l == 0u) s_live = 0u;
     barrier();
@@ -196,7 +337,7 @@ void main() {
     uint live = s_live;
 
     for (uint top = n; top > 0u;) {
-        uint cnt = min(256u, top);
+        uint cnt = min(STAGE_SLOTS, top);
         uint base = top - cnt;  // batch [base, top) of the chunk
         top = base;
         barrier();
@@ -205,7 +346,7 @@ void main() {
         // Nothing at or after the subgroup's last contributor.
         uint word = visit_word(P, start + base, sg_last);
 #ifdef COUNTERS
-        c_dense += cnt;
+        c_dense += WALK_PPL * cnt;
         if ((live & (1u << sg)) != 0u) c_build += 1u;
 #endif
 
@@ -215,139 +356,34 @@ void main() {
         for (uint turn = 0u; turn < gl_NumSubgroups; ++turn) {
         if (turn == sg) {
 #endif
-        for (uint ww = 8u; ww > 0u; --ww) {
+        for (uint ww = WALK_WORDS; ww > 0u; --ww) {
             uint bits = subgroupShuffle(word, ww - 1u);
             while (bits != 0u) {
-            uint b32 = uint(findMSB(bits));
-            bits &= ~(1u << b32);
-            uint j = 32u * (ww - 1u) + b32;
-            uint idx = start + base + j;
-            Entry e = load_entry(j);  // j is the same on every lane
-            bool need = inside && idx < last && covers(e.val, e.box, sign, pix);
+                uint b32 = uint(findMSB(bits));
+                bits &= ~(1u << b32);
+                uint j = 32u * (ww - 1u) + b32;
+                uint idx = start + base + j;
+                Entry e = load_entry(j);  // j is the same on every lane
+                bool need0 = s0.inside && idx < s0.last && covers(e.val, e.box, s0.sign, s0.pix);
+                bool need1 = s1.inside && idx < s1.last && covers(e.val, e.box, s1.sign, s1.pix);
+                // No vote here: the visit set holds only entries some lane needs (1.00
+                // trips per useful trip), and a vote is a loop over the lanes on llvmpipe.
+                float red[16];
+                for (uint c = 0u; c < 16u; ++c) red[c] = 0.0;
+                uint w0 = bpx_step(s0, e, idx, need0, red);
+                uint w1 = bpx_step(s1, e, idx, need1, red);
 #ifdef COUNTERS
-            c_trips += 1u;
-            if (subgroupAny(need)) c_useful += 1u;
-            if (need) c_pairs += 1u;
+                c_trips += 1u;
+                if (subgroupAny(need0 || need1)) c_useful += 1u;
+                c_pairs += uint(need0) + uint(need1);
+                c_cross += uint(w0 >= 1u) + uint(w1 >= 1u);
+                c_contrib += uint(w0 == 2u) + uint(w1 == 2u);
 #endif
-            // No vote here: the visit set holds only entries some lane needs (1.00 trips
-            // per useful trip), and a vote is a loop over the lanes on llvmpipe.
-
-            // Recompute the forward quantities of this entry (identically to composite).
-            vec4 cs = e.cs;
-            float h = 0.5 * cs.w;
-            vec2 ab = ray_aabb(cs.xyz - h, cs.xyz + h, rd, inv_rd);
-            float a = max(ab.x, t_near), b = ab.y;
-            need = need && a <= b;
-#ifdef COUNTERS
-            if (need) c_cross += 1u;
-#endif
-            float g[8];
-            for (uint c = 0u; c < 8u; ++c) g[c] = e.g[c];
-            precise float step_sz = (b - a) * (1.0 / float(N_SAMP));
-            vec3 vmin = cs.xyz - h;
-            float inv_size = 1.0 / cs.w;
-            precise float vol = 0.0;  // as in the composite (bit-identical α)
-            float la[N_SAMP], lv[N_SAMP], rho[N_SAMP];
-            vec3 qs[N_SAMP];
-            for (int k = 0; k < N_SAMP; ++k) {
-                precise float t = a + (float(k) + 0.5) * step_sz;
-                precise vec3 qk = (t * rd - vmin) * inv_size;
-                qs[k] = qk;
-                rho[k] = trilinear(g, qs[k]);
-                lv[k] = STEP_SZ_SCALE * step_sz * explin(rho[k]);
-                vol += lv[k];
-                la[k] = min(MAX_ALPHA, alpha_of_depth(lv[k]));
-            }
-            precise float raw_alpha = alpha_of_depth(vol);
-            float alpha = min(MAX_ALPHA, raw_alpha);
-            need = need && alpha >= MIN_ALPHA;
-#ifdef COUNTERS
-            if (need) c_contrib += 1u;
-#endif
-
-            vec3 d_rgb = vec3(0.0), d_nrm = vec3(0.0);
-            float d_geo[8];
-            for (uint c = 0u; c < 8u; ++c) d_geo[c] = 0.0;
-            float prio = 0.0;
-            if (need) {
-                vec3 col = e.rgb;
-                vec3 nrm = e.nrm;
-                // The last contributor's T_k is stored by the forward: T / (1 - α) would
-                // amplify any difference in α by up to 1 / (1 - α) = 1e5. Before it,
-                // T_{k+1} ≥ 1e-4 (no early stop yet) bounds 1 / (1 - α_k) by 1e4·T_k.
-                float Tk = idx + 1u == last ? t_last : T / (1.0 - alpha);
-                float w = Tk * alpha;
-                float mid = 0.5 * (a + b);
-                float delta = b - a;
-                // ∂L_dist/∂w_k (segments are constants).
-                float Wk = 1.0 - Tk;
-                float Mk = mtot - ma - w * mid;
-                float u = lam_dist * (2.0 * (mid * Wk - Mk) + 2.0 * (ma - mid * wa) +
-                                      (2.0 / 3.0) * w * delta);
-                vec3 diff = col - gt;
-                float r = lam_r * dot(diff, diff) * (1.0 / 3.0);
-                float lin = dot(dC, col) + dot(dN, nrm) + r + u;
-                float dval, dphi;
-#if N_SAMP == 1
-                dval = alpha * mid;
-                dphi = lin + dD * mid;
-#else
-                dval = 0.0;
-                float tr = 1.0;
-                float trs[N_SAMP];
-                for (int k = 0; k < N_SAMP; ++k) {
-                    trs[k] = tr;
-                    dval += tr * la[k] * (a + (float(k) + 0.5) * step_sz);
-                    tr *= 1.0 - la[k];
-                }
-                dphi = lin;
-#endif
-                float phi = alpha * lin + dD * dval;
-                float g_alpha = Tk * (dphi - A);
-                prio = abs(alpha * g_alpha);
-                float g_vol = raw_alpha > MAX_ALPHA ? 0.0 : g_alpha * exp(-vol);
-                float d_lv[N_SAMP];
-                for (int k = 0; k < N_SAMP; ++k) d_lv[k] = g_vol;
-#if N_SAMP > 1
-                // Depth of a K-sample segment: dval = Σ_s tr_s la_s t_s.
-                float S = 0.0;
-                for (int k = N_SAMP - 1; k >= 0; --k) {
-                    float t = a + (float(k) + 0.5) * step_sz;
-                    float dla = trs[k] * (t - S);
-                    float lraw = alpha_of_depth(lv[k]);
-                    if (lraw <= MAX_ALPHA) d_lv[k] += Tk * dD * dla * exp(-lv[k]);
-                    S = la[k] * t + (1.0 - la[k]) * S;
-                }
-#endif
-                for (int k = 0; k < N_SAMP; ++k) {
-                    float coef = d_lv[k] * STEP_SZ_SCALE * step_sz * explin_grad(rho[k]);
-                    vec3 q = qs[k], q0 = 1.0 - q;
-                    for (uint c = 0u; c < 8u; ++c) {
-                        float wt = ((c & 4u) != 0u ? q.x : q0.x) * ((c & 2u) != 0u ? q.y : q0.y) *
-                                   ((c & 1u) != 0u ? q.z : q0.z);
-                        d_geo[c] += coef * wt;
-                    }
-                }
-                d_rgb = w * dC + (w * lam_r * (2.0 / 3.0)) * diff;
-                d_nrm = w * dN;
-                A = phi + (1.0 - alpha) * A;
-                wa += w;
-                ma += w * mid;
-                T = Tk;
-            }
-            // One voxel per entry: reduce over the subgroup, every lane adds a component.
-            float red[16];
-            for (uint c = 0u; c < 8u; ++c) red[VG_GEO + c] = d_geo[c];
-            for (uint c = 0u; c < 3u; ++c) {
-                red[VG_RGB + c] = d_rgb[c];
-                red[VG_NRM + c] = d_nrm[c];
-            }
-            red[VG_PRIO] = prio;
-            red[15] = 0.0;
+                // One voxel per entry: reduce over the subgroup, every lane adds a component.
 #ifdef DETERMINISTIC
-            reduce_add(red, VG_STRIDE * record_index(e));
+                reduce_add(red, VG_STRIDE * record_index(e));
 #else
-            reduce_add(red, VG_STRIDE * (e.val & 0x1fffffffu));
+                reduce_add(red, VG_STRIDE * (e.val & 0x1fffffffu));
 #endif
             }
         }
@@ -363,11 +399,6 @@ void main() {
     flush_counters(ctr, CTR_BWD, c_trips, c_useful, c_dense, c_pairs, c_cross, c_contrib,
                    c_build);
 #endif
-
-    if (inside) {
-        B.bstate.v[BS_T * npix + p] = T;
-        B.bstate.v[BS_A * npix + p] = A;
-        B.bstate.v[BS_WA * npix + p] = wa;
-        B.bstate.v[BS_MA * npix + p] = ma;
-    }
+    bpx_store(P, B, s0);
+    bpx_store(P, B, s1);
 }

@@ -7,10 +7,11 @@
 // and carries the per-pixel state (C, T, D, N, median) in the image buffers, so no
 // invocation's loops exceed llvmpipe's 65 535-iteration limit however long a tile's
 // list is; the host records enough chunks (stats report the longest list and flag a
-// shortfall). Entries are staged through shared memory 256 at a time; each subgroup
-// visits only the staged entries whose pixel rectangle meets its block and whose sign
-// octant one of its live pixels has (tile_walk.glsl); a pixel then skips entries of
-// another octant or whose rectangle excludes it.
+// shortfall). Each invocation composites two pixels (tile_walk.glsl's walk_pixel).
+// Entries are staged through shared memory 128 at a time; each subgroup visits only the
+// staged entries whose pixel rectangle meets its block and whose sign octant one of its
+// live pixels has (tile_walk.glsl); a pixel then skips entries of another octant or
+// whose rectangle excludes it.
 #include "raster_params.glsl"
 #include "explin.glsl"
 #include "morton.glsl"
@@ -18,7 +19,7 @@
 #include "trilinear.glsl"
 #include "entry_stage.glsl"
 #include "tile_walk.glsl"
-layout(local_size_x = 256) in;
+layout(local_size_x = 128) in;  // WALK_WG
 
 layout(push_constant) uniform Push {
     FrameParams P;
@@ -28,141 +29,119 @@ layout(push_constant) uniform Push {
 
 shared uint s_live[2];  // per batch parity: subgroups with a pixel still compositing
 
-void main() {
-    FrameParams P = pc.P;
-    uint l = gl_LocalInvocationID.x;
-    uint tiles_x = P.tiles.x;
-    uint tile = gl_WorkGroupID.y * tiles_x + gl_WorkGroupID.x;
-    uvec2 pix = gl_WorkGroupID.xy * 16u + tile_pixel(l);
+// One pixel's compositing state (carried between chunk dispatches in the image buffers).
+struct Px {
+    uvec2 pix;
+    uint p;  // index in the render
+    bool inside;
+    vec3 rd, inv_rd;
+    uint sign;
+    float t_near, t_far;
+    vec3 C, N;
+    float T, D, med_t;
+    uint med_id;
+    // Distortion (mip-NeRF 360) sums over contributors in order: Σ w·m and the loss
+    // value Σ 2 w_k (m_k W_k - M_k) + w_k² δ_k / 3 with W_k = 1 - T_k, M_k = Σ_{j<k} w_j m_j.
+    float dist_m, dist_l;
+    float t_last;  // transmittance in front of the last contributor
+    uint last;
+    bool done;
+};
+
+Px px_init(FrameParams P, uvec2 lp) {
+    Px s;
+    s.pix = gl_WorkGroupID.xy * 16u + lp;
     uint W = P.render_size.x, H = P.render_size.y;
-    bool inside = pix.x < W && pix.y < H;
     uint npix = W * H;
-    uint p = pix.y * W + pix.x;
-
-    vec3 rd;
+    s.inside = s.pix.x < W && s.pix.y < H;
+    s.p = s.pix.y * W + s.pix.x;
     float rd_norm;
-    pixel_ray(P, pix, rd, rd_norm);
-    vec3 inv_rd = 1.0 / rd;
-    uint sign = ray_sign_bits(rd);
-    float t_near = P.near * rd_norm;
+    pixel_ray(P, s.pix, s.rd, rd_norm);
+    s.inv_rd = 1.0 / s.rd;
+    s.sign = ray_sign_bits(s.rd);
+    s.t_near = P.near * rd_norm;
     // The host's surface ends the ray (raster/host/); infinity without host depth.
-    float t_far = inside ? host_t_far(P, pix, rd_norm) : 0.0;
-
-    vec3 C = vec3(0.0), N = vec3(0.0);
-    float T = 1.0, D = 0.0, med_t = 0.0;
-    uint med_id = 0xffffffffu;
-    // Distortion (mip-NeRF 360) sums over contributors in order: Σ w·m and the loss value
-    // Σ 2 w_k (m_k W_k - M_k) + w_k² δ_k / 3 with W_k = 1 - T_k, M_k = Σ_{j<k} w_j m_j.
-    float dist_m = 0.0, dist_l = 0.0;
-    float t_last = 1.0;  // transmittance in front of the last contributor
-    uint last = 0u;
-    if (pc.chunk > 0u && inside) {
-        dist_m = P.aux.v[AUX_M * npix + p];
-        dist_l = P.aux.v[AUX_DIST * npix + p];
-        t_last = P.aux.v[AUX_TLAST * npix + p];
-        last = P.last.v[p];
-        C = vec3(P.img.v[CH_R * npix + p], P.img.v[CH_G * npix + p], P.img.v[CH_B * npix + p]);
-        T = P.img.v[CH_T * npix + p];
-        D = P.img.v[CH_DEPTH * npix + p];
-        N = vec3(P.img.v[CH_NX * npix + p], P.img.v[CH_NY * npix + p], P.img.v[CH_NZ * npix + p]);
-        med_id = P.med_id.v[p];
-        med_t = P.med_t.v[p];
+    s.t_far = s.inside ? host_t_far(P, s.pix, rd_norm) : 0.0;
+    s.C = vec3(0.0);
+    s.N = vec3(0.0);
+    s.T = 1.0;
+    s.D = 0.0;
+    s.med_t = 0.0;
+    s.med_id = 0xffffffffu;
+    s.dist_m = 0.0;
+    s.dist_l = 0.0;
+    s.t_last = 1.0;
+    s.last = 0u;
+    uint p = s.p;
+    if (pc.chunk > 0u && s.inside) {
+        s.dist_m = P.aux.v[AUX_M * npix + p];
+        s.dist_l = P.aux.v[AUX_DIST * npix + p];
+        s.t_last = P.aux.v[AUX_TLAST * npix + p];
+        s.last = P.last.v[p];
+        s.C = vec3(P.img.v[CH_R * npix + p], P.img.v[CH_G * npix + p], P.img.v[CH_B * npix + p]);
+        s.T = P.img.v[CH_T * npix + p];
+        s.D = P.img.v[CH_DEPTH * npix + p];
+        s.N = vec3(P.img.v[CH_NX * npix + p], P.img.v[CH_NY * npix + p], P.img.v[CH_NZ * npix + p]);
+        s.med_id = P.med_id.v[p];
+        s.med_t = P.med_t.v[p];
     }
-    bool done = !inside || T < EARLY_STOP_T;
-    // Max-weight statistics: only when a target is set, and never from a frame whose
-    // entries overflowed the key buffers (its tile lists miss voxels, which would
-    // inflate the transmittance of those behind). A frame short of chunks composites
-    // an exact prefix of every list, so its weights are the complete frame's.
-#ifdef TRACK_MAXW
-    bool track_maxw = U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u] <= uint64_t(P.entry_capacity);
-#endif
-#ifdef COUNTERS
-    // Per invocation (a dispatch stays far below 2^32 of each).
-    uint c_trips = 0u, c_useful = 0u, c_dense = 0u, c_pairs = 0u, c_cross = 0u, c_contrib = 0u,
-         c_build = 0u;
-#endif
-    uint sg = gl_SubgroupID;
-    uvec2 org = gl_WorkGroupID.xy * 16u;
-    if (l < 2u) s_live[l] = 0u;
-    walk_setup(l, tile_pixel(l), sign, inside);
+    s.done = !s.inside || s.T < EARLY_STOP_T;
+    return s;
+}
 
-    uint chunk_size = P.chunk_size;
-    uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
-    uint start = r0 + min(r1 - r0, pc.chunk * chunk_size);
-    uint end = min(r1, start + chunk_size);
-    if (l == 0u) {
-        if (pc.chunk == 0u) atomicMax(P.stats.v[STAT_MAX_TILE], r1 - r0);
-        if (pc.chunk + 1u == P.chunks && end < r1) atomicOr(P.stats.v[STAT_FLAGS], FLAG_NEED_CHUNKS);
-    }
-    uint n = end - start;
+void px_store(FrameParams P, Px s) {
+    if (!s.inside) return;
+    uint npix = P.render_size.x * P.render_size.y;
+    uint p = s.p;
+    P.img.v[CH_R * npix + p] = s.C.x;
+    P.img.v[CH_G * npix + p] = s.C.y;
+    P.img.v[CH_B * npix + p] = s.C.z;
+    P.img.v[CH_T * npix + p] = s.T;
+    P.img.v[CH_DEPTH * npix + p] = s.D;
+    P.img.v[CH_NX * npix + p] = s.N.x;
+    P.img.v[CH_NY * npix + p] = s.N.y;
+    P.img.v[CH_NZ * npix + p] = s.N.z;
+    P.med_id.v[p] = s.med_id;
+    P.med_t.v[p] = s.med_t;
+    P.aux.v[AUX_M * npix + p] = s.dist_m;
+    P.aux.v[AUX_DIST * npix + p] = s.dist_l;
+    P.aux.v[AUX_TLAST * npix + p] = s.t_last;
+    P.last.v[p] = s.last;
+}
 
-    for (uint base = 0u, batch = 0u; base < n; base += 256u, ++batch) {
-        // Subgroups with a pixel still compositing; stop when none is (uniform). Two
-        // words by batch parity: the other one, last read before the previous batch's
-        // second barrier, is cleared here for the next batch, so one barrier serves.
-        // It also ends the previous batch's walk before staging overwrites its slots.
-        bool sg_live = subgroupAny(!done);
-        if (sg_live && subgroupElect()) atomicOr(s_live[batch & 1u], 1u << sg);
-        if (l == 0u) s_live[(batch + 1u) & 1u] = 0u;
-        barrier();
-        uint live = s_live[batch & 1u];
-        if (live == 0u) break;
-
-        uint cnt = min(256u, n - base);
-        stage_slot(P, walk_slot(), cnt, start + base, org, live);
-        barrier();
-        uint word = visit_word(P, start + base, start + base + 256u);
-#ifdef COUNTERS
-        // What the full walk did: every subgroup, every staged entry, while any pixel
-        // of the tile was live.
-        c_dense += cnt;
-        if (sg_live) c_build += 1u;
-#endif
-
-        for (uint w = 0u; w < 8u; ++w) {
-            uint bits = subgroupShuffle(word, w);
-            while (bits != 0u) {
-            uint j = 32u * w + uint(findLSB(bits));
-            bits &= bits - 1u;
-            // j is the same on every lane (uniform control flow).
-            Entry e = load_entry(j);
-            bool need = !done && covers(e.val, e.box, sign, pix);
-#ifdef COUNTERS
-            c_trips += 1u;
-            if (subgroupAny(need)) c_useful += 1u;
-            if (need) c_pairs += 1u;
-#endif
-            vec4 cs = e.cs;
-            float h = 0.5 * cs.w;
-            vec2 ab = ray_aabb(cs.xyz - h, cs.xyz + h, rd, inv_rd);
-            float a = max(ab.x, t_near), b = min(ab.y, t_far);
-            // A voxel the ray enters at or behind the host's surface: so do all later
-            // ones of this octant (exact depth order), the pixel is done.
-            if (need && a >= t_far && ab.x <= ab.y) done = true;
-            need = need && a <= b;
-#ifdef COUNTERS
-            if (need) c_cross += 1u;
-#endif
-            if (need) {
-            precise float step_sz = (b - a) * (1.0 / float(N_SAMP));
-            vec3 vmin = cs.xyz - h;
-            float inv_size = 1.0 / cs.w;
-            // precise: α is recomputed by the backward, compiled separately; both must
-            // round identically (no contraction into FMAs one kernel does and one not).
-            precise float vol = 0.0;
-            float la[N_SAMP];
-            for (int k = 0; k < N_SAMP; ++k) {
-                precise float t = a + (float(k) + 0.5) * step_sz;
-                precise vec3 q = (t * rd - vmin) * inv_size;
-                float local_vol = STEP_SZ_SCALE * step_sz * explin(trilinear(e.g, q));
-                vol += local_vol;
-                la[k] = min(MAX_ALPHA, alpha_of_depth(local_vol));
-            }
-            precise float alpha = min(MAX_ALPHA, alpha_of_depth(vol));
-            if (alpha >= MIN_ALPHA) {
-#ifdef COUNTERS
-            c_contrib += 1u;
-#endif
+// Composites entry `e` (sorted index idx) into pixel state `s` when `need` (the entry
+// is of the pixel's octant and its rectangle holds the pixel; uniform control flow).
+// Returns 1 for a ray–voxel crossing, 2 for a contribution too (work counters).
+uint px_step(FrameParams P, inout Px s, Entry e, uint idx, bool need, bool track_maxw) {
+    uint work = 0u;
+    vec4 cs = e.cs;
+    float h = 0.5 * cs.w;
+    vec2 ab = ray_aabb(cs.xyz - h, cs.xyz + h, s.rd, s.inv_rd);
+    float a = max(ab.x, s.t_near), b = min(ab.y, s.t_far);
+    // A voxel the ray enters at or behind the host's surface: so do all later ones of
+    // this octant (exact depth order), the pixel is done.
+    if (need && a >= s.t_far && ab.x <= ab.y) s.done = true;
+    need = need && a <= b;
+    if (need) {
+        work = 1u;
+        precise float step_sz = (b - a) * (1.0 / float(N_SAMP));
+        vec3 vmin = cs.xyz - h;
+        float inv_size = 1.0 / cs.w;
+        // precise: α is recomputed by the backward, compiled separately; both must
+        // round identically (no contraction into FMAs one kernel does and one not).
+        precise float vol = 0.0;
+        float la[N_SAMP];
+        for (int k = 0; k < N_SAMP; ++k) {
+            precise float t = a + (float(k) + 0.5) * step_sz;
+            precise vec3 q = (t * s.rd - vmin) * inv_size;
+            float local_vol = STEP_SZ_SCALE * step_sz * explin(trilinear(e.g, q));
+            vol += local_vol;
+            la[k] = min(MAX_ALPHA, alpha_of_depth(local_vol));
+        }
+        precise float alpha = min(MAX_ALPHA, alpha_of_depth(vol));
+        if (alpha >= MIN_ALPHA) {
+            work = 2u;
+            float T = s.T;
             float wt = T * alpha;
 #ifdef TRACK_MAXW
             if (track_maxw) {
@@ -174,12 +153,12 @@ void main() {
             }
 #endif
             float mid = 0.5 * (a + b);
-            dist_l += wt * (2.0 * (mid * (1.0 - T) - dist_m) + wt * (b - a) * (1.0 / 3.0));
-            dist_m += wt * mid;
-            last = start + base + j + 1u;
-            t_last = T;
-            C += wt * e.rgb;
-            N += wt * e.nrm;
+            s.dist_l += wt * (2.0 * (mid * (1.0 - T) - s.dist_m) + wt * (b - a) * (1.0 / 3.0));
+            s.dist_m += wt * mid;
+            s.last = idx + 1u;
+            s.t_last = T;
+            s.C += wt * e.rgb;
+            s.N += wt * e.nrm;
             // Voxel depth (supp. A.4, Eqs. 19-21); K = 1 uses the segment midpoint.
             float dval;
 #if N_SAMP == 1
@@ -192,18 +171,99 @@ void main() {
                 tr *= 1.0 - la[k];
             }
 #endif
-            D += T * dval;
+            s.D += T * dval;
             if (T > 0.5) {
-                med_id = e.val & 0x1fffffffu;
-                med_t = T;
+                s.med_id = e.val & 0x1fffffffu;
+                s.med_t = T;
             }
-            T *= 1.0 - alpha;
-            done = T < EARLY_STOP_T;
-            }
-            }
+            s.T = T * (1.0 - alpha);
+            s.done = s.T < EARLY_STOP_T;
+        }
+    }
+    return work;
+}
+
+void main() {
+    FrameParams P = pc.P;
+    uint l = gl_LocalInvocationID.x;
+    uint tiles_x = P.tiles.x;
+    uint tile = gl_WorkGroupID.y * tiles_x + gl_WorkGroupID.x;
+    uvec2 lp0 = walk_pixel(0u), lp1 = walk_pixel(1u);
+    Px s0 = px_init(P, lp0);
+    Px s1 = px_init(P, lp1);
+    // Max-weight statistics: only when a target is set, and never from a frame whose
+    // entries overflowed the key buffers (its tile lists miss voxels, which would
+    // inflate the transmittance of those behind). A frame short of chunks composites
+    // an exact prefix of every list, so its weights are the complete frame's.
+    bool track_maxw = false;
+#ifdef TRACK_MAXW
+    track_maxw = U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u] <= uint64_t(P.entry_capacity);
+#endif
+#ifdef COUNTERS
+    // Per invocation (a dispatch stays far below 2^32 of each).
+    uint c_trips = 0u, c_useful = 0u, c_dense = 0u, c_pairs = 0u, c_cross = 0u, c_contrib = 0u,
+         c_build = 0u;
+#endif
+    uint sg = gl_SubgroupID;
+    uvec2 org = gl_WorkGroupID.xy * 16u;
+    if (l < 2u) s_live[l] = 0u;
+    walk_setup(l, lp0, lp1, s0.sign, s1.sign, s0.inside, s1.inside);
+
+    uint chunk_size = P.chunk_size;
+    uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
+    uint start = r0 + min(r1 - r0, pc.chunk * chunk_size);
+    uint end = min(r1, start + chunk_size);
+    if (l == 0u) {
+        if (pc.chunk == 0u) atomicMax(P.stats.v[STAT_MAX_TILE], r1 - r0);
+        if (pc.chunk + 1u == P.chunks && end < r1) atomicOr(P.stats.v[STAT_FLAGS], FLAG_NEED_CHUNKS);
+    }
+    uint n = end - start;
+
+    for (uint base = 0u, batch = 0u; base < n; base += STAGE_SLOTS, ++batch) {
+        // Subgroups with a pixel still compositing; stop when none is (uniform). Two
+        // words by batch parity: the other one, last read before the previous batch's
+        // second barrier, is cleared here for the next batch, so one barrier serves.
+        // It also ends the previous batch's walk before staging overwrites its slots.
+        bool sg_live = subgroupAny(!(s0.done && s1.done));
+        if (sg_live && subgroupElect()) atomicOr(s_live[batch & 1u], 1u << sg);
+        if (l == 0u) s_live[(batch + 1u) & 1u] = 0u;
+        barrier();
+        uint live = s_live[batch & 1u];
+        if (live == 0u) break;
+
+        uint cnt = min(STAGE_SLOTS, n - base);
+        stage_slot(P, walk_slot(), cnt, start + base, org, live);
+        barrier();
+        uint word = visit_word(P, start + base, start + base + STAGE_SLOTS);
+#ifdef COUNTERS
+        // What a full walk with one pixel per lane did: every such subgroup (two per
+        // subgroup here), every staged entry, while any pixel of the tile was live.
+        c_dense += WALK_PPL * cnt;
+        if (sg_live) c_build += 1u;
+#endif
+
+        for (uint w = 0u; w < WALK_WORDS; ++w) {
+            uint bits = subgroupShuffle(word, w);
+            while (bits != 0u) {
+                uint j = 32u * w + uint(findLSB(bits));
+                bits &= bits - 1u;
+                // j is the same on every lane (uniform control flow).
+                Entry e = load_entry(j);
+                uint idx = start + base + j;
+                bool need0 = !s0.done && covers(e.val, e.box, s0.sign, s0.pix);
+                bool need1 = !s1.done && covers(e.val, e.box, s1.sign, s1.pix);
+                uint w0 = px_step(P, s0, e, idx, need0, track_maxw);
+                uint w1 = px_step(P, s1, e, idx, need1, track_maxw);
+#ifdef COUNTERS
+                c_trips += 1u;
+                if (subgroupAny(need0 || need1)) c_useful += 1u;
+                c_pairs += uint(need0) + uint(need1);
+                c_cross += uint(w0 >= 1u) + uint(w1 >= 1u);
+                c_contrib += uint(w0 == 2u) + uint(w1 == 2u);
+#endif
             }
             // A subgroup whose pixels are all done stops walking (uniform).
-            if (subgroupAll(done)) break;
+            if (subgroupAll(s0.done && s1.done)) break;
         }
     }
 #ifdef COUNTERS
@@ -211,21 +271,6 @@ void main() {
     flush_counters(ctr, CTR_FWD, c_trips, c_useful, c_dense, c_pairs, c_cross, c_contrib,
                    c_build);
 #endif
-
-    if (inside) {
-        P.img.v[CH_R * npix + p] = C.x;
-        P.img.v[CH_G * npix + p] = C.y;
-        P.img.v[CH_B * npix + p] = C.z;
-        P.img.v[CH_T * npix + p] = T;
-        P.img.v[CH_DEPTH * npix + p] = D;
-        P.img.v[CH_NX * npix + p] = N.x;
-        P.img.v[CH_NY * npix + p] = N.y;
-        P.img.v[CH_NZ * npix + p] = N.z;
-        P.med_id.v[p] = med_id;
-        P.med_t.v[p] = med_t;
-        P.aux.v[AUX_M * npix + p] = dist_m;
-        P.aux.v[AUX_DIST * npix + p] = dist_l;
-        P.aux.v[AUX_TLAST * npix + p] = t_last;
-        P.last.v[p] = last;
-    }
+    px_store(P, s0);
+    px_store(P, s1);
 }

@@ -15,9 +15,11 @@
 #include "raster_params.glsl"
 
 const uint ENTRY_WORDS = 24u;  // 21 used: val, box (2), cs (4), geo (8), rgb (3), nrm (3)
+// Entries staged per batch: one per invocation of the tile's workgroup (tile_walk.glsl).
+const uint STAGE_SLOTS = 128u;
 const uint EW_VAL = 0u, EW_BOX = 1u, EW_CS = 3u, EW_GEO = 7u, EW_RGB = 15u, EW_NRM = 18u;
 
-shared vec4 s_ent[256 * ENTRY_WORDS / 4u];
+shared vec4 s_ent[STAGE_SLOTS * ENTRY_WORDS / 4u];
 
 struct Entry {
     uint val;
