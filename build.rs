@@ -533,12 +533,14 @@ fn constants_module(glsl: &Path, headers: &[&PathBuf]) -> String {
 /// The permutation table: kernels compiled from one body in `glsl/lib/` with `#define`s
 /// (no stub `.comp` files). Name → body, defines.
 ///
-/// - `raster/composite_k{K}[_maxw|_counters]`: forward compositing with K samples per
-///   segment; `_maxw` also folds per-voxel max blend weights (the adaptive statistics
-///   pass only); `_counters` also counts the walk's work (`bench --json`).
-/// - `train/backward_k{K}[_cas|_det][_counters]`: its backward; `_cas` adds floats with a
-///   compare-and-swap loop (devices without float atomics), `_det` writes per-entry
-///   records for the ordered reduction (`--deterministic`).
+/// - `raster/composite_k{K}[_maxw|_counters][_nonormal]`: forward compositing with K
+///   samples per segment; `_maxw` also folds per-voxel max blend weights (the adaptive
+///   statistics pass only); `_counters` also counts the walk's work (`bench --json`);
+///   `_nonormal` for frames without a normal image (`FrameOutputs`).
+/// - `train/backward_k{K}[_cas|_det][_counters|_nonormal]`: its backward; `_cas` adds
+///   floats with a compare-and-swap loop (devices without float atomics), `_det` writes
+///   per-entry records for the ordered reduction (`--deterministic`); `_nonormal` for
+///   frames without a normal image.
 /// - `train/tv[_cas|_det]`, `train/voxel_backward[_cas|_det]`: TV and the per-voxel
 ///   backward, with native float atomic adds, (`_cas`) a compare-and-swap loop, or
 ///   (`_det`) plain per-voxel-corner writes for the ordered reduction.
@@ -595,8 +597,16 @@ fn variant_table() -> Vec<Variant> {
             v.push((
                 format!("raster/composite_k{k}{suffix}"),
                 "composite.glsl",
-                d,
+                d.clone(),
             ));
+            if mode != Some("COUNTERS") {
+                d.push(("NO_NORMALS", "1".into()));
+                v.push((
+                    format!("raster/composite_k{k}{suffix}_nonormal"),
+                    "composite.glsl",
+                    d,
+                ));
+            }
         }
         for (reduction, define) in [
             ("", Some("FLOAT_ATOMICS")),
@@ -617,8 +627,16 @@ fn variant_table() -> Vec<Variant> {
                         if counters { "_counters" } else { "" }
                     ),
                     "backward.glsl",
-                    d,
+                    d.clone(),
                 ));
+                if !counters {
+                    d.push(("NO_NORMALS", "1".into()));
+                    v.push((
+                        format!("train/backward_k{k}{reduction}_nonormal"),
+                        "backward.glsl",
+                        d,
+                    ));
+                }
             }
         }
     }

@@ -10,7 +10,7 @@ use common::forward::{assert_within, compare, pixel, render, Errors};
 use common::reference::{self, RefPixel};
 use common::{camera_inside, camera_outside, context, finish, random_scene, scattered_scene, Rng};
 use svraster::data::Camera;
-use svraster::raster::{RenderOptions, Renderer};
+use svraster::raster::{FrameOutputs, RenderOptions, Renderer};
 use svraster::scene::SceneGpu;
 use svraster::scene::{octpath_from_ijk, Scene};
 
@@ -83,6 +83,53 @@ fn generic_walk_renders_what_the_8_lane_walk_renders() {
                 "seed {seed}: the generic walk's image differs"
             );
         }
+    }
+    finish(&ctx);
+}
+
+/// Frames recorded without normals or distortion sums (`Renderer::set_outputs`) keep
+/// every other channel bit for bit; their normal image reads zero.
+#[test]
+fn optional_outputs_off_change_no_other_channel() {
+    let ctx = context();
+    let mut all = Renderer::new(&ctx).unwrap();
+    all.set_outputs(FrameOutputs {
+        normals: true,
+        distortion: true,
+    });
+    let mut none = Renderer::new(&ctx).unwrap();
+    none.set_outputs(FrameOutputs {
+        normals: false,
+        distortion: false,
+    });
+    for seed in 0..3u64 {
+        let mut rng = Rng(3000 + seed);
+        let scene = random_scene(&mut rng, [3, 8, 16][seed as usize], (seed % 4) as u32);
+        let cam = camera_outside(&mut rng, &scene, 45, 31);
+        let k = 1 + seed as u32;
+        let a = render(&mut all, &ctx, &scene, &cam, k);
+        let b = render(&mut none, &ctx, &scene, &cam, k);
+        let bits = |im: &svraster::raster::Image| -> Vec<u32> {
+            let f = im.rgb.iter().flatten();
+            let g = im.alpha.iter().chain(&im.depth).chain(&im.depth_median);
+            f.chain(g).map(|x| x.to_bits()).collect()
+        };
+        assert!(
+            a.alpha.iter().any(|&x| x > 0.0),
+            "seed {seed}: nothing rendered"
+        );
+        assert!(
+            bits(&a) == bits(&b),
+            "seed {seed}: a frame without the optional outputs differs"
+        );
+        assert!(
+            a.normal.iter().flatten().any(|&x| x != 0.0),
+            "seed {seed}: no normal with normals on"
+        );
+        assert!(
+            b.normal.iter().flatten().all(|&x| x == 0.0),
+            "seed {seed}: a normal with normals off"
+        );
     }
     finish(&ctx);
 }

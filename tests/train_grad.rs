@@ -7,13 +7,108 @@ mod common;
 
 use common::backward::{
     ambiguous, compare, compare_within, default_reduction, gpu_grads, gpu_grads_ss, gpu_grads_walk,
-    random_weights, reductions,
+    gpu_grads_with, random_weights, reductions,
 };
 use common::reference_grad::{grads, LossSpec, PixelWeights};
 use common::{camera_inside, camera_outside, context, finish, random_scene, scattered_scene, Rng};
 use svraster::data::Camera;
+use svraster::raster::FrameOutputs;
 use svraster::scene::Scene;
 use svraster::train::backward::Reduction;
+
+/// A frame without normals and distortion sums (`Renderer::set_outputs`) gives the
+/// backward the same gradients, bit for bit under the ordered reduction, when no loss
+/// reads them (zero normal weights, λ_dist = 0); with λ_dist ≠ 0 the backward refuses
+/// such a frame instead of dropping the distortion gradient, and with the sums but no
+/// normals matches the f64 reference.
+#[test]
+fn optional_outputs_off_give_the_same_gradients() {
+    let ctx = context();
+    let mut rng = Rng(0x0071_00e5);
+    let mut scene = random_scene(&mut rng, 6, 2);
+    for g in scene.geo.iter_mut() {
+        *g = (rng.range(-6.0, 2.5)) as f32;
+    }
+    let cam = loop {
+        let cam = camera_outside(&mut rng, &scene, 40, 29);
+        if !ambiguous(&scene, &cam, 1) {
+            break cam;
+        }
+    };
+    let np = (cam.width * cam.height) as usize;
+    let pix = random_weights(&mut rng, np, [true, true, true, false, true]);
+    let on = FrameOutputs {
+        normals: true,
+        distortion: true,
+    };
+    let off = FrameOutputs {
+        normals: false,
+        distortion: false,
+    };
+    let red = Reduction::Ordered;
+    let spec = LossSpec {
+        lambda_dist: 0.0,
+        lambda_r: 0.5,
+    };
+    let a = gpu_grads_with(
+        &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, on,
+    )
+    .unwrap();
+    let b = gpu_grads_with(
+        &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, off,
+    )
+    .unwrap();
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+    assert!(
+        a.geo.iter().any(|&x| x != 0.0) && a.shs.iter().any(|&x| x != 0.0),
+        "the test view gives no gradient"
+    );
+    assert!(
+        bits(&a.geo) == bits(&b.geo)
+            && bits(&a.sh0) == bits(&b.sh0)
+            && bits(&a.shs) == bits(&b.shs)
+            && bits(&a.priority) == bits(&b.priority),
+        "gradients differ without the optional outputs"
+    );
+    // The no-normal kernels of the device's default reduction, against the f64 reference.
+    let red = default_reduction(&ctx);
+    let c = gpu_grads_with(
+        &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, off,
+    )
+    .unwrap();
+    let mut worst = [0.0f64; 4];
+    compare(
+        "outputs off",
+        &c,
+        &grads(&scene, &cam, 1, &pix, &spec),
+        &mut worst,
+    );
+    let spec = LossSpec {
+        lambda_dist: 0.5,
+        lambda_r: 0.5,
+    };
+    // Distortion without normals (the no-normal kernels with the distortion terms).
+    let dist_only = FrameOutputs {
+        normals: false,
+        distortion: true,
+    };
+    let d = gpu_grads_with(
+        &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, dist_only,
+    )
+    .unwrap();
+    let reference = grads(&scene, &cam, 1, &pix, &spec);
+    compare("distortion without normals", &d, &reference, &mut worst);
+    let red = Reduction::Ordered;
+    let e = gpu_grads_with(
+        &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, off,
+    );
+    let msg = e
+        .err()
+        .expect("λ_dist ≠ 0 without the distortion sums")
+        .to_string();
+    assert!(msg.contains("distortion"), "unclear error: {msg}");
+    finish(&ctx);
+}
 
 /// The tile walk's path for any subgroup size (what 32- and 64-lane GPUs run) gives
 /// the same gradients as the 8-lane register transpose, bit for bit under the ordered

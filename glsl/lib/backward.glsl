@@ -200,6 +200,12 @@ void bpx_store(FrameParams P, BackParams B, BPx s) {
 // ray–voxel crossing, 2 for a contribution too (work counters).
 uint bpx_step(inout BPx s, Entry e, uint idx, bool need, inout float red[16]) {
     uint work = 0u;
+    // What the loss uses (uniform): the normal image (FRAME_NORMALS; never in the
+    // NO_NORMALS variant) and the distortion loss (λ_dist ≠ 0, whose sums the forward
+    // kept: FRAME_DISTORTION, checked on the host). Skipping a term whose gradient input
+    // is zero changes no value.
+    bool normals = frame_normals(pc.P);
+    bool distortion = pc.B.lambda_dist != 0.0;
     float lam_dist = pc.B.lambda_dist, lam_r = pc.B.lambda_r;
     // Recompute the forward quantities of this entry (identically to composite).
     vec4 cs = e.cs;
@@ -237,13 +243,16 @@ uint bpx_step(inout BPx s, Entry e, uint idx, bool need, inout float red[16]) {
     float w = Tk * alpha;
     float mid = 0.5 * (a + b);
     float delta = b - a;
-    // ∂L_dist/∂w_k (segments are constants).
-    float Wk = 1.0 - Tk;
-    float Mk = s.mtot - s.ma - w * mid;
-    float u = lam_dist * (2.0 * (mid * Wk - Mk) + 2.0 * (s.ma - mid * s.wa) + (2.0 / 3.0) * w * delta);
+    float u = 0.0;
+    if (distortion) {
+        // ∂L_dist/∂w_k (segments are constants).
+        float Wk = 1.0 - Tk;
+        float Mk = s.mtot - s.ma - w * mid;
+        u = lam_dist * (2.0 * (mid * Wk - Mk) + 2.0 * (s.ma - mid * s.wa) + (2.0 / 3.0) * w * delta);
+    }
     vec3 diff = col - s.gt;
     float r = lam_r * dot(diff, diff) * (1.0 / 3.0);
-    float lin = dot(s.dC, col) + dot(s.dN, nrm) + r + u;
+    float lin = dot(s.dC, col) + (normals ? dot(s.dN, nrm) : 0.0) + r + u;
     float dval, dphi;
 #if N_SAMP == 1
     dval = alpha * mid;
@@ -286,14 +295,16 @@ uint bpx_step(inout BPx s, Entry e, uint idx, bool need, inout float red[16]) {
         }
     }
     vec3 d_rgb = w * s.dC + (w * lam_r * (2.0 / 3.0)) * diff;
-    vec3 d_nrm = w * s.dN;
-    for (uint c = 0u; c < 3u; ++c) {
-        red[VG_RGB + c] += d_rgb[c];
-        red[VG_NRM + c] += d_nrm[c];
+    for (uint c = 0u; c < 3u; ++c) red[VG_RGB + c] += d_rgb[c];
+    if (normals) {
+        vec3 d_nrm = w * s.dN;
+        for (uint c = 0u; c < 3u; ++c) red[VG_NRM + c] += d_nrm[c];
     }
     s.A = phi + (1.0 - alpha) * s.A;
-    s.wa += w;
-    s.ma += w * mid;
+    if (distortion) {
+        s.wa += w;
+        s.ma += w * mid;
+    }
     s.T = Tk;
     return work;
 }

@@ -152,13 +152,16 @@ uint px_step(FrameParams P, inout Px s, Entry e, uint idx, bool need, bool track
                 if (P.maxw.v[vid] < wb) atomicMax(P.maxw.v[vid], wb);
             }
 #endif
-            float mid = 0.5 * (a + b);
-            s.dist_l += wt * (2.0 * (mid * (1.0 - T) - s.dist_m) + wt * (b - a) * (1.0 / 3.0));
-            s.dist_m += wt * mid;
+            // Only what the frame's consumers read (FrameParams.flags; uniform).
+            if (frame_distortion(P)) {
+                float mid = 0.5 * (a + b);
+                s.dist_l += wt * (2.0 * (mid * (1.0 - T) - s.dist_m) + wt * (b - a) * (1.0 / 3.0));
+                s.dist_m += wt * mid;
+            }
             s.last = idx + 1u;
             s.t_last = T;
             s.C += wt * e.rgb;
-            s.N += wt * e.nrm;
+            if (frame_normals(P)) s.N += wt * e.nrm;
             // Voxel depth (supp. A.4, Eqs. 19-21); K = 1 uses the segment midpoint.
             float dval;
 #if N_SAMP == 1

@@ -35,7 +35,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     vec2 ss_scale;        // render / out size, x and y
     vec2 filter_radius;   // downsample filter radius, x and y (output pixels)
     ivec3 cam_int;        // camera position in finest-grid units: integer part
-    uint generic_walk;    // 1: visit sets by the any-subgroup-size path (tests)
+    uint flags;           // FRAME_* bits
     // Host depth convention (raster/host/): a host depth value z at camera-space
     // direction (x', y', 1) and camera depth d satisfies z = dot(xyz, (x', y', 1)) + w / d.
     vec4 depth_map;
@@ -122,6 +122,28 @@ float host_t_far(FrameParams P, uvec2 pix, float rd_norm) {
     float d = P.depth_map.w / (z - a);
     // NaN, negative (beyond infinity) and infinite depths: no cut.
     return d > 0.0 && d < inf ? d * rd_norm : inf;
+}
+
+// FrameParams.flags. GENERIC_WALK: the tile walk builds its visit sets by the path for
+// any subgroup size (tests). NORMALS: the composite accumulates the normal image (else
+// it stays 0) and the backward propagates its gradient. DISTORTION: the composite
+// accumulates the distortion sums (AUX_M, AUX_DIST; else 0), which the distortion loss
+// and its gradient need.
+const uint FRAME_GENERIC_WALK = 1u, FRAME_NORMALS = 2u, FRAME_DISTORTION = 4u;
+
+// Whether the frame accumulates normals / distortion sums (uniform branches). The
+// NO_NORMALS kernel variants (build.rs), which the host picks for frames without
+// normals, know it at compile time: the compiler then drops the normal state and work
+// from the walk (measured: a uniform branch alone left most of that cost).
+bool frame_normals(FrameParams P) {
+#ifdef NO_NORMALS
+    return false;
+#else
+    return (P.flags & FRAME_NORMALS) != 0u;
+#endif
+}
+bool frame_distortion(FrameParams P) {
+    return (P.flags & FRAME_DISTORTION) != 0u;
 }
 
 // Pixel of local invocation `l` in a 16x16 tile: Morton order, so a subgroup of 8

@@ -115,10 +115,10 @@ shared uint s_vt[STAGE_SLOTS];  // 8-lane subgroups: per slot, a row of the tran
 // where reading the 32 sets would take 32 (llvmpipe turns every shared access into a
 // loop over the lanes, and a shuffle into one permute). Other sizes publish the sets
 // (s_emask) and visit_word reads 32 of them.
-// Whether the 8-lane transpose serves (else the path for any size; P.generic_walk forces
+// Whether the 8-lane transpose serves (else the path for any size; FRAME_GENERIC_WALK forces
 // it for tests).
 bool lanes8(FrameParams P) {
-    return gl_SubgroupSize == 8u && P.generic_walk == 0u;
+    return gl_SubgroupSize == 8u && (P.flags & FRAME_GENERIC_WALK) == 0u;
 }
 
 void stage_slot(FrameParams P, uint slot, uint cnt, uint first, uvec2 org, uint live) {

@@ -187,3 +187,30 @@ impl Drop for Kernel {
         }
     }
 }
+
+/// A kernel made on first use: for variants that many runs never dispatch (each
+/// pipeline costs a JIT compilation on CPU devices).
+pub struct LazyKernel {
+    source: &'static KernelSource,
+    cell: std::sync::OnceLock<Kernel>,
+}
+
+impl LazyKernel {
+    pub fn new(source: &'static KernelSource) -> Self {
+        LazyKernel {
+            source,
+            cell: std::sync::OnceLock::new(),
+        }
+    }
+
+    /// The kernel, made now if this is its first use.
+    pub fn get(&self, ctx: &Context) -> Result<&Kernel> {
+        if let Some(k) = self.cell.get() {
+            return Ok(k);
+        }
+        let made = Kernel::new(ctx, self.source)?;
+        // Another thread may have made it meanwhile: keep the first, drop ours.
+        let _ = self.cell.set(made);
+        Ok(self.cell.get().expect("set above"))
+    }
+}

@@ -11,7 +11,7 @@ pub mod recorder;
 pub use buffer::{Buffer, GrowBuffer, Memory};
 pub use context::{BorrowedHandles, Context, ContextOptions, MemoryBudget};
 pub use device::DeviceInfo;
-pub use kernel::{Kernel, KernelSource};
+pub use kernel::{Kernel, KernelSource, LazyKernel};
 pub use recorder::Timestamps;
 
 // `gpu_layout!`: compile-time checks of the Rust mirrors of the GLSL buffer-reference

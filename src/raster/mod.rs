@@ -39,13 +39,13 @@ pub(crate) use counters::COUNTER_WORDS;
 pub use counters::{WalkCounters, WorkCounters};
 pub(crate) use params::AUX_CHANNELS;
 use params::{ChunkPush, FrameParams, ParamsPush, SetupPush};
-pub use plan::FrameGeometry;
 use plan::Plan;
+pub use plan::{FrameGeometry, FrameOutputs};
 pub use readback::{FrameStats, Image};
 
 use crate::camera::Camera;
 use crate::gpu::{
-    glsl, kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Memory, Timestamps,
+    glsl, kernels, recorder, Buffer, Context, GrowBuffer, Kernel, LazyKernel, Memory, Timestamps,
 };
 use crate::scan::PrefixScan;
 use crate::scene::{Scene, MAX_LEVEL};
@@ -105,6 +105,9 @@ struct RasterKernels {
     ranges_k: Kernel,
     /// Composite variants: [plain, max-weight statistics, counters][samples - 1].
     composite: [[Kernel; 3]; 3],
+    /// The plain and statistics variants for frames without a normal image
+    /// (`FrameOutputs`), made on first use.
+    composite_nonormal: [[LazyKernel; 3]; 2],
     finalize: Kernel,
     downsample: Kernel,
     host_output: Kernel,
@@ -159,6 +162,7 @@ pub struct Renderer {
     counters: Option<Buffer>,
     counters_on: bool,
     generic_walk: bool,
+    outputs: FrameOutputs,
     /// Frames are recorded for a host (transparent background, host depth); see `host/`.
     host: Option<HostFrame>,
 }
@@ -185,6 +189,18 @@ impl Renderer {
                     Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K1_COUNTERS)?,
                     Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K2_COUNTERS)?,
                     Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K3_COUNTERS)?,
+                ],
+            ],
+            composite_nonormal: [
+                [
+                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K1_NONORMAL),
+                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K2_NONORMAL),
+                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K3_NONORMAL),
+                ],
+                [
+                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K1_MAXW_NONORMAL),
+                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K2_MAXW_NONORMAL),
+                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K3_MAXW_NONORMAL),
                 ],
             ],
             finalize: Kernel::new(ctx, &kernels::RASTER_FINALIZE)?,
@@ -241,6 +257,7 @@ impl Renderer {
             maxw_target: 0,
             counters: None,
             generic_walk: false,
+            outputs: FrameOutputs::default(),
             counters_on: false,
             host: None,
         })
@@ -254,6 +271,18 @@ impl Renderer {
     #[doc(hidden)]
     pub fn set_generic_walk(&mut self, on: bool) {
         self.generic_walk = on;
+    }
+
+    /// Chooses what the frames recorded from now on accumulate besides colour, opacity,
+    /// depth and median depth ([`FrameOutputs::default`]: normals, no distortion sums).
+    /// An output that is off reads as zero.
+    pub fn set_outputs(&mut self, outputs: FrameOutputs) {
+        self.outputs = outputs;
+    }
+
+    /// What the frames recorded from now on accumulate (see [`Renderer::set_outputs`]).
+    pub fn outputs(&self) -> FrameOutputs {
+        self.outputs
     }
 
     /// Turns the work counters on or off for the frames (and training backwards)
@@ -435,7 +464,9 @@ impl Renderer {
             ss_scale: [sx, sy],
             filter_radius: [sx.max(1.0), sy.max(1.0)],
             cam_int: [cam_fine[0].0, cam_fine[1].0, cam_fine[2].0],
-            generic_walk: self.generic_walk as u32,
+            flags: (self.generic_walk as u32 * glsl::FRAME_GENERIC_WALK)
+                | (self.outputs.normals as u32 * glsl::FRAME_NORMALS)
+                | (self.outputs.distortion as u32 * glsl::FRAME_DISTORTION),
             depth_map: self.host.map_or([0.0; 4], |h| h.depth_map),
             octpath: scene.octpath.address(),
             level: scene.level.address(),
@@ -593,7 +624,13 @@ impl Renderer {
         } else {
             0
         };
-        let k = &self.k.composite[variant][opts.samples as usize - 1];
+        let si = opts.samples as usize - 1;
+        let nonormal = !self.outputs.normals;
+        let k = if nonormal && variant < 2 {
+            self.k.composite_nonormal[variant][si].get(&ctx)?
+        } else {
+            &self.k.composite[variant][si]
+        };
         for chunk in 0..plan.chunks {
             k.dispatch(
                 cmd,

@@ -33,8 +33,8 @@ pub(super) struct FrameParams {
     pub(super) ss_scale: [f32; 2],
     pub(super) filter_radius: [f32; 2],
     pub(super) cam_int: [i32; 3],
-    /// 1: the walk builds visit sets by the path for any subgroup size (tests).
-    pub(super) generic_walk: u32,
+    /// `FRAME_*` bits (glsl/lib/raster_params.glsl): generic walk, normals, distortion.
+    pub(super) flags: u32,
     /// Host depth convention (see `host::DepthConvention`).
     pub(super) depth_map: [f32; 4],
     pub(super) octpath: u64,
@@ -110,6 +110,12 @@ push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_MAXW);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_COUNTERS);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_COUNTERS);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_COUNTERS);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_NONORMAL);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_NONORMAL);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_NONORMAL);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_MAXW_NONORMAL);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_MAXW_NONORMAL);
+push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_MAXW_NONORMAL);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]

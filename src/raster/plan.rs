@@ -21,6 +21,32 @@ pub(super) struct Plan {
     pub(super) supersampled: bool,
     /// Recorded with work counters on.
     pub(super) counters: bool,
+    /// What the composite accumulated besides colour, opacity and depth.
+    pub(super) outputs: FrameOutputs,
+}
+
+/// What a frame accumulates besides colour, opacity, depth and median depth (see
+/// [`Renderer::set_outputs`]). Each costs the composite a few operations and two or
+/// three state updates per contributing (pixel, voxel) pair, and the training backward
+/// as many: a frame computes only what its consumers read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameOutputs {
+    /// The normal image (the normal channels; zero when off) and, in the training
+    /// backward, the normal losses' gradient.
+    pub normals: bool,
+    /// The per-pixel distortion sums (mip-NeRF 360) that the distortion loss and its
+    /// gradient read; the backward refuses a frame without them when λ_dist ≠ 0.
+    pub distortion: bool,
+}
+
+impl Default for FrameOutputs {
+    /// Normals on (renders write them), distortion sums off (only training reads them).
+    fn default() -> Self {
+        FrameOutputs {
+            normals: true,
+            distortion: false,
+        }
+    }
 }
 
 impl Plan {
@@ -45,6 +71,8 @@ pub struct FrameGeometry {
     /// Whether the frame was recorded with work counters on (the backward then counts
     /// into the same buffer).
     pub counters: bool,
+    /// What the frame accumulated besides colour, opacity and depth.
+    pub outputs: FrameOutputs,
 }
 
 impl Renderer {
@@ -170,6 +198,7 @@ impl Renderer {
             },
             supersampled: render_w != cam.width || render_h != cam.height,
             counters: self.counters_on,
+            outputs: self.outputs,
         })
     }
 

@@ -88,6 +88,7 @@ impl Renderer {
             supersampled: p.supersampled,
             params: self.params.address(),
             counters: p.counters,
+            outputs: p.outputs,
         })
     }
 

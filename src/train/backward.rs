@@ -17,7 +17,9 @@
 
 use ash::vk;
 
-use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Memory, Timestamps};
+use crate::gpu::{
+    kernels, recorder, Buffer, Context, GrowBuffer, Kernel, LazyKernel, Memory, Timestamps,
+};
 use crate::push_constants;
 use crate::raster::{FrameGeometry, FrameStats};
 use crate::scene::SceneGpu;
@@ -307,6 +309,15 @@ push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_DET);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_DET_COUNTERS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_DET_COUNTERS);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_DET_COUNTERS);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_NONORMAL);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_NONORMAL);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_NONORMAL);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_CAS_NONORMAL);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_CAS_NONORMAL);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_CAS_NONORMAL);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_DET_NONORMAL);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_DET_NONORMAL);
+push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_DET_NONORMAL);
 push_constants!(ChunkPush, kernels::TRAIN_RECORDS_GATHER);
 push_constants!(Push2, kernels::TRAIN_VOXEL_BACKWARD_DET);
 
@@ -332,6 +343,8 @@ pub struct Backward {
     prepare_k: Kernel,
     /// [plain, work counters][samples - 1].
     backward: [[Kernel; 3]; 2],
+    /// [samples - 1]: for frames without a normal image, made on first use.
+    nonormal: [LazyKernel; 3],
     voxel: Kernel,
     reduction: Reduction,
     ordered: Option<OrderedKernels>,
@@ -361,7 +374,7 @@ impl Backward {
                 "this device has no float atomic adds; use Reduction::choose".into(),
             ));
         }
-        let (k, kc, v) = match reduction {
+        let (k, kc, kl, v) = match reduction {
             Reduction::Atomic => (
                 [
                     &kernels::TRAIN_BACKWARD_K1,
@@ -372,6 +385,11 @@ impl Backward {
                     &kernels::TRAIN_BACKWARD_K1_COUNTERS,
                     &kernels::TRAIN_BACKWARD_K2_COUNTERS,
                     &kernels::TRAIN_BACKWARD_K3_COUNTERS,
+                ],
+                [
+                    &kernels::TRAIN_BACKWARD_K1_NONORMAL,
+                    &kernels::TRAIN_BACKWARD_K2_NONORMAL,
+                    &kernels::TRAIN_BACKWARD_K3_NONORMAL,
                 ],
                 &kernels::TRAIN_VOXEL_BACKWARD,
             ),
@@ -386,6 +404,11 @@ impl Backward {
                     &kernels::TRAIN_BACKWARD_K2_CAS_COUNTERS,
                     &kernels::TRAIN_BACKWARD_K3_CAS_COUNTERS,
                 ],
+                [
+                    &kernels::TRAIN_BACKWARD_K1_CAS_NONORMAL,
+                    &kernels::TRAIN_BACKWARD_K2_CAS_NONORMAL,
+                    &kernels::TRAIN_BACKWARD_K3_CAS_NONORMAL,
+                ],
                 &kernels::TRAIN_VOXEL_BACKWARD_CAS,
             ),
             Reduction::Ordered => (
@@ -398,6 +421,11 @@ impl Backward {
                     &kernels::TRAIN_BACKWARD_K1_DET_COUNTERS,
                     &kernels::TRAIN_BACKWARD_K2_DET_COUNTERS,
                     &kernels::TRAIN_BACKWARD_K3_DET_COUNTERS,
+                ],
+                [
+                    &kernels::TRAIN_BACKWARD_K1_DET_NONORMAL,
+                    &kernels::TRAIN_BACKWARD_K2_DET_NONORMAL,
+                    &kernels::TRAIN_BACKWARD_K3_DET_NONORMAL,
                 ],
                 &kernels::TRAIN_VOXEL_BACKWARD_DET,
             ),
@@ -425,6 +453,7 @@ impl Backward {
                     Kernel::new(ctx, kc[2])?,
                 ],
             ],
+            nonormal: kl.map(LazyKernel::new),
             voxel: Kernel::new(ctx, v)?,
             reduction,
             ordered,
@@ -558,6 +587,13 @@ impl Backward {
                 "the backward needs a complete frame (see Renderer::grow_for)".into(),
             ));
         }
+        if losses.lambda_dist != 0.0 && !frame.outputs.distortion {
+            return Err(Error::Invalid(
+                "the distortion loss needs a frame recorded with its sums \
+                 (Renderer::set_outputs with distortion on)"
+                    .into(),
+            ));
+        }
         let points = match (self.reduction, grads.points.as_ref()) {
             (Reduction::Ordered, None) => {
                 return Err(Error::Invalid(
@@ -626,7 +662,12 @@ impl Backward {
         if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "backward.prepare");
         }
-        let k = &self.backward[frame.counters as usize][samples as usize - 1];
+        let si = samples as usize - 1;
+        let k = if !frame.counters && !frame.outputs.normals {
+            self.nonormal[si].get(&ctx)?
+        } else {
+            &self.backward[frame.counters as usize][si]
+        };
         for chunk in (0..chunks).rev() {
             k.dispatch(
                 cmd,

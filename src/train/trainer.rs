@@ -26,7 +26,7 @@ use crate::adapt::stats::StatsPass;
 use crate::adapt::topology::Topology;
 use crate::camera::Camera;
 use crate::gpu::{recorder, Context, Timestamps};
-use crate::raster::{RenderOptions, Renderer};
+use crate::raster::{FrameOutputs, RenderOptions, Renderer};
 use crate::scene::{Scene, SceneGpu};
 use crate::{Error, Result};
 
@@ -203,6 +203,26 @@ impl Trainer {
             samples: cfg.samples,
             supersample: ss,
         };
+        let lambda_dist = if it >= self.schedule.dist_from {
+            cfg.lambda_dist
+        } else {
+            0.0
+        };
+        let lambda_nmed = if it >= self.schedule.normal_dmed_from {
+            cfg.lambda_normal_dmed
+        } else {
+            0.0
+        };
+        let lambda_nmean = if it >= self.schedule.normal_dmean_from {
+            cfg.lambda_normal_dmean
+        } else {
+            0.0
+        };
+        // The frame accumulates only what this iteration's losses read.
+        self.renderer.set_outputs(FrameOutputs {
+            normals: lambda_nmed > 0.0 || lambda_nmean > 0.0,
+            distortion: lambda_dist != 0.0,
+        });
         let mut timing = self.timing.take();
         let stats = self.renderer.render_to_device(
             &self.scene,
@@ -235,21 +255,6 @@ impl Trainer {
             cfg.lr_decay
         } else {
             1.0
-        };
-        let lambda_dist = if it >= self.schedule.dist_from {
-            cfg.lambda_dist
-        } else {
-            0.0
-        };
-        let lambda_nmed = if it >= self.schedule.normal_dmed_from {
-            cfg.lambda_normal_dmed
-        } else {
-            0.0
-        };
-        let lambda_nmean = if it >= self.schedule.normal_dmean_from {
-            cfg.lambda_normal_dmean
-        } else {
-            0.0
         };
         let lambda_tv = if it < self.schedule.tv_until {
             cfg.lambda_tv

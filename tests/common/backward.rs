@@ -6,7 +6,7 @@ use super::reference_grad::{evaluate, pixel_rays, Eval, LossSpec, Params, PixelW
 use super::Rng;
 use svraster::data::Camera;
 use svraster::gpu::Context;
-use svraster::raster::{RenderOptions, Renderer};
+use svraster::raster::{FrameOutputs, RenderOptions, Renderer};
 use svraster::scene::{Scene, SceneGpu};
 use svraster::train::backward::{dout, Backward, EntryLosses, Gradients, Reduction};
 
@@ -81,9 +81,46 @@ pub fn gpu_grads_walk(
     ss: f32,
     generic_walk: bool,
 ) -> GpuGrads {
+    let all = FrameOutputs {
+        normals: true,
+        distortion: true,
+    };
+    gpu_grads_with(
+        ctx,
+        scene,
+        cam,
+        k,
+        pix,
+        spec,
+        reduction,
+        chunk,
+        ss,
+        generic_walk,
+        all,
+    )
+    .unwrap()
+}
+
+/// As [`gpu_grads_walk`], with the frame's optional outputs chosen by `outputs`
+/// ([`Renderer::set_outputs`]); the backward's error when they do not suffice.
+#[allow(clippy::too_many_arguments)]
+pub fn gpu_grads_with(
+    ctx: &Context,
+    scene: &Scene,
+    cam: &Camera,
+    k: u32,
+    pix: &[PixelWeights],
+    spec: &LossSpec,
+    reduction: Reduction,
+    chunk: Option<u32>,
+    ss: f32,
+    generic_walk: bool,
+    outputs: FrameOutputs,
+) -> svraster::Result<GpuGrads> {
     let gpu = SceneGpu::upload(ctx, scene).unwrap();
     let mut r = Renderer::new(ctx).unwrap();
     r.set_generic_walk(generic_walk);
+    r.set_outputs(outputs);
     let opts = RenderOptions {
         samples: k,
         supersample: ss,
@@ -122,17 +159,16 @@ pub fn gpu_grads_walk(
                 lambda_r: spec.lambda_r as f32,
             },
         )
-    })
-    .unwrap();
+    })?;
     assert_eq!(b.read_lost().unwrap(), 0, "CAS adds gave up");
     let n = scene.num_voxels();
-    GpuGrads {
+    Ok(GpuGrads {
         geo: ctx.download(&g.geo, 0, scene.num_grid_points()).unwrap(),
         sh0: ctx.download(&g.sh0, 0, n * 3).unwrap(),
         shs: g.download_shs(ctx).unwrap(),
         priority: ctx.download(&g.priority, 0, n).unwrap(),
         max_tile: stats.max_tile_entries,
-    }
+    })
 }
 
 /// Largest |gpu − ref| relative to the largest |ref| of the group.
