@@ -7,7 +7,7 @@ mod common;
 
 use common::reference_grad::{evaluate, pixel_rays, LossSpec, Params, PixelWeights, TERM_DIST};
 use common::{camera_outside, context, finish, random_scene, Rng};
-use svraster::raster::{RenderOptions, Renderer, CHANNELS};
+use svraster::raster::{FrameOutputs, RenderOptions, Renderer, CHANNELS};
 use svraster::scene::SceneGpu;
 use svraster::train::backward::{dout, Backward};
 use svraster::train::loss::{LossWeights, PixelLoss};
@@ -55,6 +55,11 @@ fn pixel_losses_match_the_f64_reference() {
         let cam = camera_outside(&mut rng, &scene, 37, 29);
         let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
         let mut r = Renderer::new(&ctx).unwrap();
+        // The distortion sum is checked below.
+        r.set_outputs(FrameOutputs {
+            normals: true,
+            distortion: true,
+        });
         let opts = RenderOptions {
             samples: 1,
             supersample: ss,

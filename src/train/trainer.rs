@@ -47,6 +47,8 @@ pub struct StepLosses {
     pub t_concentration: f64,
     /// mean(T²) (the inside term).
     pub t_inside: f64,
+    /// Mean distortion (mip-NeRF 360) per render pixel; 0 while the distortion loss is
+    /// off (its sums are then not accumulated, see `FrameOutputs`).
     pub distortion: f64,
     pub tv: f64,
     /// mean(1 − N·n_med) and mean(α² − α N·n_mean) where defined (0 while inactive).
