@@ -146,8 +146,9 @@ bool frame_distortion(FrameParams P) {
     return (P.flags & FRAME_DISTORTION) != 0u;
 }
 
-// Pixel of local invocation `l` in a 16x16 tile: Morton order, so a subgroup of 8
-// covers a 4x2 block, 32 lanes an 8x4 block (coherent rays, fewer idle lanes).
+// Pixel `l` (0..255) of a 16x16 tile in Morton order: 2^n consecutive ones form a
+// rectangle (16: 4x4, 64: 8x8), which tile_walk.glsl's walk_pixel gives a subgroup
+// (coherent rays, fewer idle lanes).
 uvec2 tile_pixel(uint l) {
     uint x = (l & 1u) | ((l >> 1u) & 2u) | ((l >> 2u) & 4u) | ((l >> 3u) & 8u);
     uint y = ((l >> 1u) & 1u) | ((l >> 2u) & 2u) | ((l >> 3u) & 4u) | ((l >> 4u) & 8u);

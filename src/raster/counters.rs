@@ -13,7 +13,8 @@ pub struct WalkCounters {
     pub trips: u64,
     /// Trips in which at least one lane's pixel needed the entry (rectangle and sign).
     pub useful_trips: u64,
-    /// Trips a full walk (every subgroup visits every entry of its tile) would make.
+    /// Trips a full walk with one pixel per lane (every such subgroup visits every
+    /// entry of its tile) would make: the baseline the tile walk is measured against.
     pub full_walk_trips: u64,
     /// (pixel, entry) pairs past the rectangle and sign test.
     pub pairs: u64,
@@ -21,7 +22,7 @@ pub struct WalkCounters {
     pub crossings: u64,
     /// Contributions (α ≥ 1e-5).
     pub contributions: u64,
-    /// Visit-set builds (one per subgroup and staged batch of 256 entries).
+    /// Visit-set builds (one per subgroup and staged batch of 128 entries).
     pub builds: u64,
     /// Subgroups dispatched (all chunks).
     pub subgroups: u64,

@@ -457,7 +457,7 @@ impl Backward {
             voxel: Kernel::new(ctx, v)?,
             reduction,
             ordered,
-            // The ordered walk adds a turn per subgroup and batch (32 per 256 entries on
+            // The ordered walk adds a turn per subgroup and batch (16 per 128 entries on
             // 8-lane subgroups); where a driver runs a skipped turn's loops with every
             // lane masked off (llvmpipe without real branches) each turn costs a few
             // loop iterations more, so it keeps the compare-and-swap chunk's margin.
