@@ -16,6 +16,22 @@ use svraster::raster::FrameOutputs;
 use svraster::scene::Scene;
 use svraster::train::backward::Reduction;
 
+/// A random scene with moderate densities and a 40×29 outside view on which the
+/// reference decides every pixel's order unambiguously at K = 1.
+fn scene_and_clear_view(rng: &mut Rng, max_level: u32, degree: u32) -> (Scene, Camera) {
+    let mut scene = random_scene(rng, max_level, degree);
+    for g in scene.geo.iter_mut() {
+        *g = (rng.range(-6.0, 2.5)) as f32;
+    }
+    let cam = loop {
+        let cam = camera_outside(rng, &scene, 40, 29);
+        if !ambiguous(&scene, &cam, 1) {
+            break cam;
+        }
+    };
+    (scene, cam)
+}
+
 /// A frame without normals and distortion sums (`Renderer::set_outputs`) gives the
 /// backward the same gradients, bit for bit under the ordered reduction, when no loss
 /// reads them (zero normal weights, λ_dist = 0); with λ_dist ≠ 0 the backward refuses
@@ -25,16 +41,7 @@ use svraster::train::backward::Reduction;
 fn optional_outputs_off_give_the_same_gradients() {
     let ctx = context();
     let mut rng = Rng(0x0071_00e5);
-    let mut scene = random_scene(&mut rng, 6, 2);
-    for g in scene.geo.iter_mut() {
-        *g = (rng.range(-6.0, 2.5)) as f32;
-    }
-    let cam = loop {
-        let cam = camera_outside(&mut rng, &scene, 40, 29);
-        if !ambiguous(&scene, &cam, 1) {
-            break cam;
-        }
-    };
+    let (scene, cam) = scene_and_clear_view(&mut rng, 6, 2);
     let np = (cam.width * cam.height) as usize;
     let pix = random_weights(&mut rng, np, [true, true, true, false, true]);
     let on = FrameOutputs {
@@ -58,16 +65,12 @@ fn optional_outputs_off_give_the_same_gradients() {
         &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, off,
     )
     .unwrap();
-    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
     assert!(
         a.geo.iter().any(|&x| x != 0.0) && a.shs.iter().any(|&x| x != 0.0),
         "the test view gives no gradient"
     );
     assert!(
-        bits(&a.geo) == bits(&b.geo)
-            && bits(&a.sh0) == bits(&b.sh0)
-            && bits(&a.shs) == bits(&b.shs)
-            && bits(&a.priority) == bits(&b.priority),
+        a.same_bits(&b),
         "gradients differ without the optional outputs"
     );
     // The no-normal kernels of the device's default reduction, against the f64 reference.
@@ -120,16 +123,7 @@ fn generic_walk_gradients_equal_the_8_lane_walk() {
     let mut rng = Rng(0x6a4d_0077);
     let mut worst = [0.0f64; 4];
     for (i, &(max_level, degree)) in [(3u32, 0u32), (6, 1), (8, 3)].iter().enumerate() {
-        let mut scene = random_scene(&mut rng, max_level, degree);
-        for g in scene.geo.iter_mut() {
-            *g = (rng.range(-6.0, 2.5)) as f32;
-        }
-        let cam = loop {
-            let cam = camera_outside(&mut rng, &scene, 40, 29);
-            if !ambiguous(&scene, &cam, 1) {
-                break cam;
-            }
-        };
+        let (scene, cam) = scene_and_clear_view(&mut rng, max_level, degree);
         let np = (cam.width * cam.height) as usize;
         let pix = random_weights(&mut rng, np, [true; 5]);
         let spec = LossSpec {
@@ -139,12 +133,8 @@ fn generic_walk_gradients_equal_the_8_lane_walk() {
         let red = Reduction::Ordered;
         let fast = gpu_grads_walk(&ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false);
         let generic = gpu_grads_walk(&ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, true);
-        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
         assert!(
-            bits(&fast.geo) == bits(&generic.geo)
-                && bits(&fast.sh0) == bits(&generic.sh0)
-                && bits(&fast.shs) == bits(&generic.shs)
-                && bits(&fast.priority) == bits(&generic.priority),
+            fast.same_bits(&generic),
             "scene {i}: the generic walk's gradients differ from the 8-lane walk's"
         );
         let reference = grads(&scene, &cam, 1, &pix, &spec);

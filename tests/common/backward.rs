@@ -19,6 +19,17 @@ pub struct GpuGrads {
     pub max_tile: u32,
 }
 
+impl GpuGrads {
+    /// Whether every gradient (grid points, SH, priorities) equals `other`'s bit for bit.
+    pub fn same_bits(&self, other: &GpuGrads) -> bool {
+        let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        bits(&self.geo) == bits(&other.geo)
+            && bits(&self.sh0) == bits(&other.sh0)
+            && bits(&self.shs) == bits(&other.shs)
+            && bits(&self.priority) == bits(&other.priority)
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 pub fn gpu_grads(
     ctx: &Context,
