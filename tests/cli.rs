@@ -1082,13 +1082,20 @@ fn colmap_capture_train_eval_with_data_options() {
     assert!(!ok && err.contains("apply to captures"), "{err}");
 }
 
-/// `python3` with numpy: Debian's own (a pyenv or venv earlier on PATH may lack it).
+/// A `python3` with numpy: Debian's own first (a pyenv or venv earlier on PATH may lack
+/// it), else the one on PATH (a GPU image's /usr/bin/python3 may lack numpy while its
+/// own Python has it). Falls back to Debian's, whose failure names the fix.
 fn python() -> &'static str {
-    if std::path::Path::new("/usr/bin/python3").exists() {
-        "/usr/bin/python3"
-    } else {
-        "python3"
-    }
+    let has_numpy = |py: &str| {
+        Command::new(py)
+            .args(["-c", "import numpy"])
+            .output()
+            .is_ok_and(|o| o.status.success())
+    };
+    ["/usr/bin/python3", "python3"]
+        .into_iter()
+        .find(|py| has_numpy(py))
+        .unwrap_or("/usr/bin/python3")
 }
 
 /// tools/ply_read.py's JSON summary of a PLY file (an independent numpy reader) and the

@@ -278,9 +278,15 @@ fn selective_adam_leaves_zero_gradient_elements_untouched() {
                 let ep = (f64::from(p[i]) - r.p).abs() / (r.p.abs() + t as f64 * f64::from(cfg.lr));
                 assert!(
                     ep <= ADAM_TOL,
-                    "step {t} element {i}: p {} vs {}",
+                    "step {t} element {i}: g {} p {} (before {}, ref {}) m {} (ref {}) v {} (ref {})",
+                    grads[i],
                     p[i],
-                    r.p
+                    p_before[i],
+                    r.p,
+                    m[i],
+                    r.m,
+                    v[i],
+                    r.v
                 );
                 stepped += 1;
             }
@@ -292,6 +298,49 @@ fn selective_adam_leaves_zero_gradient_elements_untouched() {
         "the test must skip elements dense Adam would move"
     );
     finish(&ctx);
+}
+
+/// Instructions of `spirv` decorated NoContraction (GLSL `precise`): the compiler must
+/// evaluate them as written, neither fused nor reassociated.
+fn no_contraction_count(spirv: &[u8]) -> usize {
+    const OP_DECORATE: u32 = 71;
+    const NO_CONTRACTION: u32 = 42;
+    let words: Vec<u32> = spirv
+        .chunks_exact(4)
+        .map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    assert_eq!(words[0], 0x0723_0203, "SPIR-V magic");
+    let mut i = 5; // header
+    let mut n = 0;
+    while i < words.len() {
+        let (count, op) = ((words[i] >> 16) as usize, words[i] & 0xffff);
+        assert!(count > 0, "malformed SPIR-V at word {i}");
+        if op == OP_DECORATE && count >= 3 && words[i + 2] == NO_CONTRACTION {
+            n += 1;
+        }
+        i += count;
+    }
+    n
+}
+
+/// Adam's overflow safety at |g| = 1e20 rests on the order ((1−β₂)·g)·g. llvmpipe keeps
+/// the order written whatever the SPIR-V says, so the f64 comparison above cannot catch
+/// a compiler that reassociates (NVIDIA's did: g·g overflowed, v saturated, the step of
+/// a g = ±1e20 element shrank to 0.54·lr, and both Adam tests failed on an H200). What
+/// lavapipe can check is that the kernel forbids it: its moment, denominator and
+/// parameter updates are `precise` (NoContraction) in both code paths (four elements
+/// per invocation, and the scalar tail).
+#[test]
+fn adam_update_order_is_fixed_in_the_spirv() {
+    use svraster::gpu::kernels;
+    let n = no_contraction_count(kernels::TRAIN_ADAM.spirv);
+    // Per inlined copy of step1: sg (mul), v2 (2 mul, add), m2 (2 mul, add), denom
+    // (mul, add; sqrt is an extended instruction), p2 (div, mul, sub): 12; two copies.
+    // Without `precise` the count is 0.
+    assert!(
+        n >= 24,
+        "train/adam has {n} NoContraction instructions; its updates must be `precise`"
+    );
 }
 
 #[test]
@@ -602,6 +651,13 @@ fn check_tv(
         })
         .collect();
     let (value, grad) = run_tv(ctx, tv, layout, geo, &grad0, weight);
+    // Give-ups first: a lost add shows as a wrong gradient below, this names the cause.
+    assert_eq!(
+        tv.read_lost().unwrap(),
+        0,
+        "{:?}: compare-and-swap adds gave up",
+        tv.reduction()
+    );
     let geo64: Vec<f64> = geo.iter().map(|&g| f64::from(g)).collect();
     let l_ref = ref_tv_value(&layout.corners, &geo64);
     let (g_ref, scale, adds) = ref_tv_grad(&layout.corners, &geo64);
@@ -622,13 +678,14 @@ fn check_tv(
         let e = (f64::from(grad[i]) - expect).abs() / (grad_units(adds[i]) * s);
         assert!(
             e <= 1.0,
-            "point {i}: grad {} expected {expect} (start {}, rel {e:e})",
+            "{:?}: point {i} ({} adds): grad {} expected {expect} (start {}, rel {e:e})",
+            tv.reduction(),
+            adds[i],
             grad[i],
             grad0[i]
         );
         e_grad = e_grad.max(e);
     }
-    assert_eq!(tv.read_lost().unwrap(), 0, "CAS give-ups");
     TvErrors {
         value: e_value,
         grad: e_grad,

@@ -615,8 +615,8 @@ fn depth_normal_losses_make_normals_agree_with_depth() {
 /// process's allocations.)
 #[test]
 fn voxel_budget_follows_the_device_memory_budget() {
-    use svraster::gpu::MemoryBudget;
-    use svraster::train::trainer::{bytes_per_voxel, voxel_budget, voxel_budget_with};
+    use svraster::gpu::{DeviceInfo, MemoryBudget};
+    use svraster::train::trainer::{voxel_budget, voxel_budget_with};
     let ctx = context();
     let info = ctx.info();
     let Some(reading) = ctx.memory_budget() else {
@@ -629,31 +629,55 @@ fn voxel_budget_follows_the_device_memory_budget() {
     assert_eq!(reading.heap_bytes, info.device_local_heap_bytes);
     let mut cfg = TrainConfig::preset("quick").unwrap();
     cfg.sh_degree = 0; // per-voxel buffers small enough that memory, not one allocation, limits
-    let expect = |bytes: u64| {
-        let mut b = bytes / 2 / bytes_per_voxel(0);
-        if info.max_memory_allocation_size > 0 {
-            b = b.min(info.max_memory_allocation_size / 64);
-        }
-        b.min(svraster::scene::MAX_VOXELS as u64)
+                       // The rules on this device's limits, and on an H200's (143 GB heap, 4 GiB per
+                       // allocation: there the allocation cap binds until little memory is left).
+    let h200 = DeviceInfo {
+        device_local_heap_bytes: 143_000_000_000,
+        max_memory_allocation_size: 4 << 30,
+        ..info.clone()
     };
-    let b0 = voxel_budget_with(info, Some(reading), &cfg);
-    assert_eq!(b0, expect(reading.available_bytes()));
-    // 4 GiB more in use (another process, or this one): a smaller budget.
-    let busier = MemoryBudget {
-        usage_bytes: reading.usage_bytes + (4 << 30),
-        ..reading
+    let h200_reading = MemoryBudget {
+        heap_bytes: h200.device_local_heap_bytes,
+        budget_bytes: 140_000_000_000,
+        usage_bytes: 600 << 20,
     };
-    let b1 = voxel_budget_with(info, Some(busier), &cfg);
-    assert_eq!(b1, expect(busier.available_bytes()));
-    assert!(b1 < b0, "{b1} !< {b0}");
-    // Without the extension: the heap.
-    assert_eq!(
-        voxel_budget_with(info, None, &cfg),
-        expect(info.device_local_heap_bytes)
-    );
+    for (info, reading) in [(info, reading), (&h200, h200_reading)] {
+        let expect = |bytes: u64| expect_budget(info, bytes);
+        let b0 = voxel_budget_with(info, Some(reading), &cfg);
+        assert_eq!(b0, expect(reading.available_bytes()));
+        // Far more in use (another process, or this one): 256 MiB left, where the memory
+        // and not the allocation cap binds on any device (with "4 GiB more in use" the
+        // cap still bound on an H200, and the budget did not shrink).
+        let busier = MemoryBudget {
+            usage_bytes: reading.budget_bytes.saturating_sub(256 << 20),
+            ..reading
+        };
+        assert!(busier.available_bytes() < reading.available_bytes());
+        let b1 = voxel_budget_with(info, Some(busier), &cfg);
+        assert_eq!(b1, expect(busier.available_bytes()));
+        assert!(b1 < b0, "{}: {b1} !< {b0}", info.device_local_heap_bytes);
+        // Without the extension: the heap.
+        assert_eq!(
+            voxel_budget_with(info, None, &cfg),
+            expect(info.device_local_heap_bytes)
+        );
+    }
     let live = voxel_budget(&ctx, &cfg);
-    assert!(live > 0 && live <= expect(reading.budget_bytes), "{live}");
+    assert!(
+        live > 0 && live <= expect_budget(info, reading.budget_bytes),
+        "{live}"
+    );
     cfg.max_voxels = 1234;
     assert_eq!(voxel_budget(&ctx, &cfg), 1234);
     finish(&ctx);
+}
+
+/// The budget rule for `bytes` of memory on `info` (degree-0 SH): half of it, capped by
+/// one allocation (8 candidate keys per voxel) and the voxel ids.
+fn expect_budget(info: &svraster::gpu::DeviceInfo, bytes: u64) -> u64 {
+    let mut b = bytes / 2 / svraster::train::trainer::bytes_per_voxel(0);
+    if info.max_memory_allocation_size > 0 {
+        b = b.min(info.max_memory_allocation_size / 64);
+    }
+    b.min(svraster::scene::MAX_VOXELS as u64)
 }

@@ -4,8 +4,9 @@
 //   p −= lr/bc1 · m / (sqrt(v)/sqrt(bc2) + eps)
 // with the bias corrections bc1 = 1 − b1^t, bc2 = 1 − b2^t folded into `step` and
 // `rsqrt_bc2` on the host (in f64). Overflow-safe for |g| up to ~1e20: g² is formed as
-// ((1−b2)·g)·g, v/bc2 is never formed (sqrt(v)·rsqrt_bc2 instead), and v saturates at
-// the largest finite float instead of becoming +inf (which would freeze p for good).
+// ((1−b2)·g)·g, in that order on every device (`precise`), v/bc2 is never formed
+// (sqrt(v)·rsqrt_bc2 instead), and v saturates at the largest finite float instead of
+// becoming +inf (which would freeze p for good).
 // m = 0 gives an update of exactly 0 (never 0/0, whatever eps). A non-finite g sets
 // bit 0 (value 1) of flags[0] and leaves that element's p, m, v untouched; a non-finite
 // new p is written and sets the same bit. With skip_zero (selective Adam) an element
@@ -47,11 +48,19 @@ void step1(float g, inout float p, inout float m, inout float v, inout bool bad,
     }
     if (pc.skip_zero != 0u && g == 0.0) return;
     write = true;
-    m = pc.b1 * m + pc.omb1 * g;
-    v = min(pc.b2 * v + (pc.omb2 * g) * g, FLT_MAX);
-    float denom = sqrt(v) * pc.rsqrt_bc2 + pc.eps;
+    // `precise` (SPIR-V NoContraction): the order written is the order evaluated. A
+    // compiler free to reassociate may form g·g first, which overflows for |g| ≳ 1.8e19
+    // (NVIDIA's did: v saturated at g = 1e20 and the step shrank to 0.54 lr); llvmpipe
+    // happened to keep the written order, so nothing else here may rely on it.
+    precise float sg = pc.omb2 * g;
+    precise float v2 = pc.b2 * v + sg * g;
+    precise float m2 = pc.b1 * m + pc.omb1 * g;
+    m = m2;
+    v = min(v2, FLT_MAX);
+    precise float denom = sqrt(v) * pc.rsqrt_bc2 + pc.eps;
     if (m != 0.0 && denom > 0.0) {
-        p = p - pc.step * (m / denom);
+        precise float p2 = p - pc.step * (m / denom);
+        p = p2;
         if (isinf(p) || isnan(p)) bad = true;
     }
 }
