@@ -617,6 +617,7 @@ impl Gpu {
                 debug_utils: args.validation,
                 float_atomic_add: false,
                 full_subgroups,
+                conditional_rendering: false,
             })
             .map_err(|e| e.to_string())?;
             let scene_gpu = SceneGpu::upload(&ctx, scene).map_err(|e| e.to_string())?;

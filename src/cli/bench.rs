@@ -284,11 +284,17 @@ fn bench_render(
     let (mut dup, mut per_tile, mut max_tile, mut entries) =
         (Vec::new(), Vec::new(), 0u32, Vec::new());
     let mut visible = Vec::new();
+    let mut queue = QueueCost::default();
+    let mut balance = Vec::new();
     for _ in 0..runs {
         for cam in &cams {
+            let c0 = ctx.queue_counters();
             let t = Instant::now();
             let st = r.render_to_device(&gpu, cam, &opts, Some(&mut ts))?;
-            wall_ms.push(t.elapsed().as_secs_f64() * 1e3);
+            let wall = t.elapsed().as_secs_f64() * 1e3;
+            wall_ms.push(wall);
+            queue.push(ctx.queue_counters() - c0, wall);
+            balance.push(tile_balance(&st));
             let s = ts.stages()?;
             frame_ms.push(s.iter().map(|(_, ms)| ms).sum());
             for (name, ms) in s {
@@ -336,6 +342,9 @@ fn bench_render(
             "duplicates_per_visible_voxel_median": median(&dup),
             "entries_per_tile_median": median(&per_tile),
             "max_entries_per_tile": max_tile,
+            "tile_balance_median": median(&balance),
+            "walk_workgroups_per_dispatch": tiles_of(w, h, opts.supersample),
+            "queue_per_frame": queue.json(),
             "device": ctx.info().name,
             "subgroup_size": ctx.info().subgroup_size,
             "work_per_frame": walk_json(&work.forward),
@@ -359,12 +368,15 @@ fn bench_render(
             println!("    {n:<12} {ms:9.2} ms");
         }
         println!(
-            "  visible voxels {:.0}, entries {:.0}: {:.2} per visible voxel, {:.1} per tile (max {max_tile})",
+            "  visible voxels {:.0}, entries {:.0}: {:.2} per visible voxel, {:.1} per tile (max {max_tile}; longest/mean {:.1}, {} walk workgroups per dispatch)",
             median(&visible),
             median(&entries),
             median(&dup),
-            median(&per_tile)
+            median(&per_tile),
+            median(&balance),
+            tiles_of(w, h, opts.supersample)
         );
+        println!("  per frame: {}", queue.text());
         print_work(&work, ctx.info().subgroup_size);
     }
     Ok(())
@@ -434,12 +446,21 @@ fn bench_train(
     let mut wall = Vec::new();
     // The SH degree the timed iterations actually used (reported, not assumed).
     let mut sh_used = 0;
+    let mut queue = QueueCost::default();
+    let mut balance = Vec::new();
+    let mut walk_groups = Vec::new();
     for i in 0..warmup + iters {
+        let c0 = ctx.queue_counters();
         let w = Instant::now();
         sh_used = t.step(false)?.sh_degree;
         let wall_ms = w.elapsed().as_secs_f64() * 1e3;
         if i < warmup {
             continue;
+        }
+        queue.push(ctx.queue_counters() - c0, wall_ms);
+        if let Some(st) = t.frame_stats() {
+            balance.push(tile_balance(&st));
+            walk_groups.push(st.tiles as f64);
         }
         let mut sums: BTreeMap<&'static str, f64> = BTreeMap::new();
         for (name, ms) in t.stage_times() {
@@ -495,6 +516,9 @@ fn bench_train(
             "stages_median_ms": med.iter().map(|(k, v)| (k.to_string(), *v)).collect::<BTreeMap<_, _>>(),
             "parts_median_ms": part_order.iter().map(|k| (k.clone(), median(&parts[k]))).collect::<BTreeMap<_, _>>(),
             "subgroup_size": ctx.info().subgroup_size,
+            "queue_per_iter": queue.json(),
+            "tile_balance_median": median(&balance),
+            "walk_workgroups_per_dispatch_median": median(&walk_groups),
             "work_per_iter": work_json(&work),
         });
         println!("{obj}");
@@ -515,6 +539,12 @@ fn bench_train(
             median(&total),
             median(&wall)
         );
+        println!(
+            "per iteration: {}; tile lists longest/mean {:.1}, {:.0} walk workgroups per dispatch",
+            queue.text(),
+            median(&balance),
+            median(&walk_groups)
+        );
         for (k, v) in med {
             println!("  {k:<11} {v:>9.2} ms");
             let mine: Vec<&String> = part_order.iter().filter(|p| stage_group(p) == k).collect();
@@ -525,6 +555,67 @@ fn bench_train(
         print_work(&work, ctx.info().subgroup_size);
     }
     Ok(())
+}
+
+/// What the host spends per timed iteration or frame besides the kernels: queue
+/// submissions, blocking fence waits and the milliseconds it was busy outside them
+/// (recording, submitting, reading mapped results; on a CPU device the waits hold the
+/// kernels' own time, so there `host_ms` is what the host adds on top).
+#[derive(Default)]
+struct QueueCost {
+    submits: Vec<f64>,
+    waits: Vec<f64>,
+    wait_ms: Vec<f64>,
+    host_ms: Vec<f64>,
+}
+
+impl QueueCost {
+    fn push(&mut self, c: svraster::gpu::QueueCounters, wall_ms: f64) {
+        self.submits.push(c.submits as f64);
+        self.waits.push(c.fence_waits as f64);
+        self.wait_ms.push(c.wait_ms);
+        self.host_ms.push((wall_ms - c.wait_ms).max(0.0));
+    }
+    fn json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "submits_median": median(&self.submits),
+            "submits_max": self.submits.iter().cloned().fold(0.0, f64::max),
+            "fence_waits_median": median(&self.waits),
+            "fence_waits_max": self.waits.iter().cloned().fold(0.0, f64::max),
+            "wait_ms_median": median(&self.wait_ms),
+            "host_ms_median": median(&self.host_ms),
+        })
+    }
+    fn text(&self) -> String {
+        format!(
+            "{:.0} submissions, {:.0} fence waits ({:.2} ms blocked), host {:.2} ms outside waits (medians)",
+            median(&self.submits),
+            median(&self.waits),
+            median(&self.wait_ms),
+            median(&self.host_ms)
+        )
+    }
+}
+
+/// Longest tile list over the mean list of the frame's tiles (1: perfectly even; the
+/// walk's one workgroup per tile waits for the longest).
+fn tile_balance(st: &svraster::raster::FrameStats) -> f64 {
+    let mean = st.entries_used as f64 / f64::from(st.tiles.max(1));
+    if mean > 0.0 {
+        f64::from(st.max_tile_entries) / mean
+    } else {
+        0.0
+    }
+}
+
+/// Tiles (walk workgroups per composite dispatch) of a w×h frame at supersampling `ss`.
+fn tiles_of(w: u32, h: u32, ss: f32) -> u32 {
+    let t = svraster::raster::TILE;
+    let (rw, rh) = (
+        ((w as f64 * ss as f64).round() as u32).max(1),
+        ((h as f64 * ss as f64).round() as u32).max(1),
+    );
+    rw.div_ceil(t) * rh.div_ceil(t)
 }
 
 /// Mean of the per-iteration (or per-frame) counters.

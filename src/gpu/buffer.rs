@@ -53,6 +53,17 @@ impl Buffer {
             .and_then(|a| a.mapped_slice())
             .map(|s| &s[..self.size as usize])
     }
+    /// The u32 at word `i` of a host-visible buffer (no submission; the work that wrote
+    /// it must have completed).
+    pub fn read_word(&self, i: usize) -> Result<u32> {
+        let bytes = self
+            .mapped()
+            .ok_or_else(|| Error::Gpu(format!("`{}` is not host-visible", self.name)))?;
+        let b = bytes
+            .get(4 * i..4 * i + 4)
+            .ok_or_else(|| Error::Invalid(format!("word {i} is past `{}`", self.name)))?;
+        Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    }
     pub fn mapped_mut(&mut self) -> Option<&mut [u8]> {
         let size = self.size as usize;
         self.allocation
@@ -94,7 +105,12 @@ impl Context {
             | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS
             | vk::BufferUsageFlags::TRANSFER_SRC
             | vk::BufferUsageFlags::TRANSFER_DST
-            | vk::BufferUsageFlags::INDIRECT_BUFFER;
+            | vk::BufferUsageFlags::INDIRECT_BUFFER
+            | if inner.conditional.is_some() {
+                vk::BufferUsageFlags::CONDITIONAL_RENDERING_EXT
+            } else {
+                vk::BufferUsageFlags::empty()
+            };
         let raw = unsafe {
             inner.device.create_buffer(
                 &vk::BufferCreateInfo::default()
@@ -189,6 +205,18 @@ impl Context {
     pub fn buffer_from<T: bytemuck::Pod>(&self, name: &str, data: &[T]) -> Result<Buffer> {
         let buf = self.buffer(name, std::mem::size_of_val(data) as u64, Memory::Device)?;
         self.upload(&buf, 0, data)?;
+        Ok(buf)
+    }
+
+    /// A host-visible buffer of `words` u32 counters, zeroed: kernels add to them
+    /// rarely (error and give-up counts), the host reads them with
+    /// [`Buffer::read_word`] without a submission once the work that wrote them
+    /// completed (behind a [`recorder::host_barrier`](super::recorder::host_barrier)).
+    pub fn counter_buffer(&self, name: &str, words: u64) -> Result<Buffer> {
+        let mut buf = self.buffer(name, words.max(1) * 4, Memory::Readback)?;
+        buf.mapped_mut()
+            .ok_or_else(|| Error::Gpu(format!("{name} is not host-visible")))?
+            .fill(0);
         Ok(buf)
     }
 

@@ -46,6 +46,39 @@ pub struct BorrowedHandles {
     /// Optional features the host enabled on the device (see `required_device_features`).
     pub float_atomic_add: bool,
     pub full_subgroups: bool,
+    /// The host enabled VK_EXT_conditional_rendering (feature `conditionalRendering`);
+    /// without it the trainer takes two submissions per iteration.
+    pub conditional_rendering: bool,
+}
+
+/// Queue traffic since the context was made ([`Context::queue_counters`]): what a
+/// training iteration or a frame costs the host besides its kernels.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct QueueCounters {
+    /// vkQueueSubmit calls.
+    pub submits: u64,
+    /// Blocking fence waits (each a round trip: the host stops until the queue drains).
+    pub fence_waits: u64,
+    /// Milliseconds the host spent blocked in those waits.
+    pub wait_ms: f64,
+}
+
+impl std::ops::Sub for QueueCounters {
+    type Output = QueueCounters;
+    fn sub(self, o: QueueCounters) -> QueueCounters {
+        QueueCounters {
+            submits: self.submits - o.submits,
+            fence_waits: self.fence_waits - o.fence_waits,
+            wait_ms: self.wait_ms - o.wait_ms,
+        }
+    }
+}
+
+#[derive(Default)]
+pub(crate) struct QueueStats {
+    submits: AtomicU64,
+    waits: AtomicU64,
+    wait_ns: AtomicU64,
 }
 
 pub(crate) struct ValidationLog {
@@ -69,6 +102,8 @@ pub(crate) struct Inner {
     pub pipeline_cache: vk::PipelineCache,
     /// Guards `queue` (Vulkan requires external synchronisation) and the command pool.
     pub submit: Mutex<vk::CommandPool>,
+    pub conditional: Option<ash::ext::conditional_rendering::Device>,
+    pub(crate) queue_stats: QueueStats,
 }
 
 // SAFETY: the raw ValidationLog pointer is only read through `&` and the log is Sync.
@@ -343,6 +378,9 @@ impl Context {
         if support.float_atomic_add {
             dev_exts.push(ash::ext::shader_atomic_float::NAME.as_ptr());
         }
+        if support.conditional_rendering {
+            dev_exts.push(ash::ext::conditional_rendering::NAME.as_ptr());
+        }
         let f10 = vk::PhysicalDeviceFeatures::default().shader_int64(true);
         let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
             .buffer_device_address(true)
@@ -361,6 +399,11 @@ impl Context {
         }
         if support.float_atomic_add {
             f2 = f2.push_next(&mut fa);
+        }
+        let mut fc = vk::PhysicalDeviceConditionalRenderingFeaturesEXT::default()
+            .conditional_rendering(true);
+        if support.conditional_rendering {
+            f2 = f2.push_next(&mut fc);
         }
         let dci = vk::DeviceCreateInfo::default()
             .queue_create_infos(&qci)
@@ -393,6 +436,7 @@ impl Context {
             debug_utils,
             float_atomic_add: support.float_atomic_add,
             full_subgroups: support.full_subgroups,
+            conditional_rendering: support.conditional_rendering,
         };
         Self::build(
             handles,
@@ -497,6 +541,9 @@ impl Context {
         if h.float_atomic_add {
             features_enabled.push("shaderBufferFloat32AtomicAdd".into());
         }
+        if h.conditional_rendering {
+            features_enabled.push("conditionalRendering".into());
+        }
         let info = DeviceInfo {
             name: cstr_field(&props.device_name),
             device_type: type_name(props.device_type).into(),
@@ -516,6 +563,7 @@ impl Context {
             features_enabled,
             float_atomic_add: h.float_atomic_add,
             full_subgroups: h.full_subgroups,
+            conditional_rendering: h.conditional_rendering,
             is_cpu: props.device_type == vk::PhysicalDeviceType::CPU,
         };
         let allocator = match Allocator::new(&AllocatorCreateDesc {
@@ -554,6 +602,9 @@ impl Context {
         let pipeline_cache =
             unsafe { device.create_pipeline_cache(&vk::PipelineCacheCreateInfo::default(), None) }
                 .unwrap_or(vk::PipelineCache::null());
+        let conditional = h
+            .conditional_rendering
+            .then(|| ash::ext::conditional_rendering::Device::new(&instance, &device));
         let debug_device = if h.debug_utils {
             Some(ash::ext::debug_utils::Device::new(&instance, &device))
         } else {
@@ -575,6 +626,8 @@ impl Context {
                 info,
                 pipeline_cache,
                 submit: Mutex::new(pool),
+                conditional,
+                queue_stats: QueueStats::default(),
             }),
         })
     }
@@ -651,7 +704,8 @@ impl Context {
     }
 
     /// Records commands with `f` into a fresh primary command buffer, submits it and
-    /// waits for it. For tools, tests and uploads; an embedding engine records into its
+    /// waits for it; device writes are then visible to the host (a host barrier ends
+    /// the command buffer). For tools, tests and uploads; an embedding engine records into its
     /// own command buffers instead.
     pub fn submit_and_wait<R>(&self, f: impl FnOnce(vk::CommandBuffer) -> Result<R>) -> Result<R> {
         let dev = &self.inner.device;
@@ -689,11 +743,20 @@ impl Context {
             }
             .vk("vkBeginCommandBuffer")?;
             let r = f(cmd)?;
+            // Whatever the commands wrote to host-visible memory is readable once the
+            // wait returns (counters, checks: Buffer::read_word, mapped copies).
+            super::recorder::host_barrier(self, cmd);
             unsafe { dev.end_command_buffer(cmd) }.vk("vkEndCommandBuffer")?;
             let cmds = [cmd];
             let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
             unsafe { dev.queue_submit(self.inner.queue, &submit, fence) }.vk("vkQueueSubmit")?;
+            let q = &self.inner.queue_stats;
+            q.submits.fetch_add(1, Ordering::Relaxed);
+            let t0 = std::time::Instant::now();
             unsafe { dev.wait_for_fences(&[fence], true, u64::MAX) }.vk("vkWaitForFences")?;
+            q.waits.fetch_add(1, Ordering::Relaxed);
+            q.wait_ns
+                .fetch_add(t0.elapsed().as_nanos() as u64, Ordering::Relaxed);
             Ok(r)
         };
         let r = run();
@@ -702,6 +765,17 @@ impl Context {
             dev.free_command_buffers(*pool, &[cmd]);
         }
         r
+    }
+
+    /// Submissions and blocking fence waits made through this context so far (all
+    /// threads). Take two readings and subtract them to cost a piece of work.
+    pub fn queue_counters(&self) -> QueueCounters {
+        let q = &self.inner.queue_stats;
+        QueueCounters {
+            submits: q.submits.load(Ordering::Relaxed),
+            fence_waits: q.waits.load(Ordering::Relaxed),
+            wait_ms: q.wait_ns.load(Ordering::Relaxed) as f64 * 1e-6,
+        }
     }
 
     /// Device memory the engine's allocator holds (bytes, all memory types), including

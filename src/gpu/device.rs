@@ -28,6 +28,10 @@ pub struct DeviceInfo {
     pub features_enabled: Vec<String>,
     pub float_atomic_add: bool,
     pub full_subgroups: bool,
+    /// VK_EXT_conditional_rendering is enabled: a recorded iteration can skip its
+    /// dispatches on a flag the GPU wrote earlier in the same command buffer (the
+    /// trainer's one-submission step).
+    pub conditional_rendering: bool,
     pub is_cpu: bool,
 }
 
@@ -132,6 +136,7 @@ pub(super) struct Support {
     pub(super) missing: Vec<&'static str>,
     pub(super) float_atomic_add: bool,
     pub(super) full_subgroups: bool,
+    pub(super) conditional_rendering: bool,
 }
 
 pub(super) fn query_support(instance: &ash::Instance, pdev: vk::PhysicalDevice) -> Support {
@@ -144,16 +149,22 @@ pub(super) fn query_support(instance: &ash::Instance, pdev: vk::PhysicalDevice) 
             missing,
             float_atomic_add: false,
             full_subgroups: false,
+            conditional_rendering: false,
         };
     }
     let exts = unsafe { instance.enumerate_device_extension_properties(pdev) }.unwrap_or_default();
     let has_ext = |name: &CStr| exts.iter().any(|e| e.extension_name_as_c_str() == Ok(name));
     let has_atomic_float = has_ext(ash::ext::shader_atomic_float::NAME);
+    let has_conditional = has_ext(ash::ext::conditional_rendering::NAME);
 
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
     let mut f13 = vk::PhysicalDeviceVulkan13Features::default();
     let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default();
+    let mut fc = vk::PhysicalDeviceConditionalRenderingFeaturesEXT::default();
     let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f12);
+    if has_conditional {
+        f2 = f2.push_next(&mut fc);
+    }
     if api >= vk::API_VERSION_1_3 {
         f2 = f2.push_next(&mut f13);
     }
@@ -200,6 +211,7 @@ pub(super) fn query_support(instance: &ash::Instance, pdev: vk::PhysicalDevice) 
         missing,
         float_atomic_add,
         full_subgroups,
+        conditional_rendering: has_conditional && fc.conditional_rendering != 0,
     }
 }
 

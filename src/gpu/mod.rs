@@ -9,7 +9,7 @@ mod kernel;
 pub mod recorder;
 
 pub use buffer::{Buffer, GrowBuffer, Memory};
-pub use context::{BorrowedHandles, Context, ContextOptions, MemoryBudget};
+pub use context::{BorrowedHandles, Context, ContextOptions, MemoryBudget, QueueCounters};
 pub use device::DeviceInfo;
 pub use kernel::{Kernel, KernelSource, LazyKernel};
 pub use recorder::Timestamps;

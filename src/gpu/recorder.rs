@@ -34,6 +34,77 @@ pub fn barrier(ctx: &Context, cmd: vk::CommandBuffer) {
     };
 }
 
+/// Device writes (dispatches, copies, fills) → host reads: recorded last in a command
+/// buffer whose results the host reads from mapped memory once its fence signalled.
+pub fn host_barrier(ctx: &Context, cmd: vk::CommandBuffer) {
+    let mb = [vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
+        .dst_access_mask(vk::AccessFlags::HOST_READ)];
+    unsafe {
+        ctx.device().cmd_pipeline_barrier(
+            cmd,
+            vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
+            vk::PipelineStageFlags::HOST,
+            vk::DependencyFlags::empty(),
+            &mb,
+            &[],
+            &[],
+        )
+    };
+}
+
+/// Starts a region whose dispatches run only if the u32 at `offset` in `predicate` is
+/// non-zero when the region starts (VK_EXT_conditional_rendering; the predicate must be
+/// written before, behind a barrier to [`conditional_barrier`]'s stage). Fills, copies
+/// and buffer updates inside the region always run. Fails where the context has no
+/// conditional rendering ([`DeviceInfo::conditional_rendering`](super::DeviceInfo)).
+pub fn begin_conditional(
+    ctx: &Context,
+    cmd: vk::CommandBuffer,
+    predicate: &Buffer,
+    offset: u64,
+) -> Result<()> {
+    let ext = ctx
+        .inner
+        .conditional
+        .as_ref()
+        .ok_or_else(|| Error::Invalid("the device has no conditional rendering".into()))?;
+    let info = vk::ConditionalRenderingBeginInfoEXT::default()
+        .buffer(predicate.raw())
+        .offset(offset);
+    unsafe { (ext.fp().cmd_begin_conditional_rendering_ext)(cmd, &info) };
+    Ok(())
+}
+
+/// Ends the region begun by [`begin_conditional`].
+pub fn end_conditional(ctx: &Context, cmd: vk::CommandBuffer) -> Result<()> {
+    let ext = ctx
+        .inner
+        .conditional
+        .as_ref()
+        .ok_or_else(|| Error::Invalid("the device has no conditional rendering".into()))?;
+    unsafe { (ext.fp().cmd_end_conditional_rendering_ext)(cmd) };
+    Ok(())
+}
+
+/// Compute writes → the conditional-rendering predicate read.
+pub fn conditional_barrier(ctx: &Context, cmd: vk::CommandBuffer) {
+    let mb = [vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
+        .dst_access_mask(vk::AccessFlags::CONDITIONAL_RENDERING_READ_EXT)];
+    unsafe {
+        ctx.device().cmd_pipeline_barrier(
+            cmd,
+            vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
+            vk::PipelineStageFlags::CONDITIONAL_RENDERING_EXT,
+            vk::DependencyFlags::empty(),
+            &mb,
+            &[],
+            &[],
+        )
+    };
+}
+
 /// Records a fill of `size` bytes (multiple of 4, or `vk::WHOLE_SIZE`) with `value`.
 pub fn fill(
     ctx: &Context,

@@ -38,7 +38,7 @@ use crate::scene::SceneGpu;
 pub(crate) use counters::COUNTER_WORDS;
 pub use counters::{WalkCounters, WorkCounters};
 pub(crate) use params::AUX_CHANNELS;
-use params::{ChunkPush, FrameParams, ParamsPush, SetupPush};
+use params::{ChunkPush, FrameOkPush, FrameParams, ParamsPush, SetupPush};
 use plan::Plan;
 pub use plan::{FrameGeometry, FrameOutputs};
 pub use readback::{FrameStats, Image};
@@ -66,6 +66,10 @@ const STAT_FLAGS: usize = glsl::STAT_FLAGS as usize;
 const STAT_MAX_TILE: usize = glsl::STAT_MAX_TILE as usize;
 const STAT_VISIBLE: usize = glsl::STAT_VISIBLE as usize;
 const STAT_ARGS: u64 = glsl::STAT_ARGS as u64;
+/// Words of `Renderer::checks`: the stats, then the sort's and the scan's first state
+/// words (their sticky errors at `ST_ERRORS`).
+const CHECK_WORDS: usize = STATS_WORDS + 2 * CHECK_STATE_WORDS;
+const CHECK_STATE_WORDS: usize = 8;
 
 /// Rendering options.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -111,6 +115,7 @@ struct RasterKernels {
     finalize: Kernel,
     downsample: Kernel,
     host_output: Kernel,
+    frame_ok: Kernel,
 }
 
 /// Host-frame settings of the frames recorded from now on (see `host/`).
@@ -156,6 +161,9 @@ pub struct Renderer {
     last_id: GrowBuffer,
     aux: GrowBuffer,
     stats: Buffer,
+    /// Host-visible copy of a frame's stats and its scan's and sort's state words
+    /// (`record_checks`): read without a submission once the frame completed.
+    checks: Buffer,
     params: Buffer,
     last: Option<Plan>,
     maxw_target: u64,
@@ -165,6 +173,8 @@ pub struct Renderer {
     outputs: FrameOutputs,
     /// Frames are recorded for a host (transparent background, host depth); see `host/`.
     host: Option<HostFrame>,
+    /// Incomplete frames rendered again (`render_to_device`).
+    grown: u64,
 }
 
 impl Renderer {
@@ -206,6 +216,7 @@ impl Renderer {
             finalize: Kernel::new(ctx, &kernels::RASTER_FINALIZE)?,
             downsample: Kernel::new(ctx, &kernels::RASTER_DOWNSAMPLE)?,
             host_output: Kernel::new(ctx, &kernels::RASTER_HOST_OUTPUT)?,
+            frame_ok: Kernel::new(ctx, &kernels::RASTER_FRAME_OK)?,
         };
         Self::with_kernels(ctx, Arc::new(k))
     }
@@ -218,6 +229,7 @@ impl Renderer {
 
     fn with_kernels(ctx: &Context, k: Arc<RasterKernels>) -> Result<Renderer> {
         let stats = ctx.buffer("raster.stats", STATS_WORDS as u64 * 4, Memory::Device)?;
+        let checks = ctx.buffer("raster.checks", CHECK_WORDS as u64 * 4, Memory::Readback)?;
         let params = ctx.buffer(
             "raster.params",
             std::mem::size_of::<FrameParams>() as u64,
@@ -252,6 +264,7 @@ impl Renderer {
             last_id: GrowBuffer::new("raster.last-contributor"),
             aux: GrowBuffer::new("raster.aux"),
             stats,
+            checks,
             params,
             last: None,
             maxw_target: 0,
@@ -260,6 +273,7 @@ impl Renderer {
             outputs: FrameOutputs::default(),
             counters_on: false,
             host: None,
+            grown: 0,
         })
     }
 
@@ -691,18 +705,18 @@ impl Renderer {
         for _attempt in 0..8 {
             self.prepare(scene, cam, opts)?;
             let ctx = self.ctx.clone();
-            ctx.submit_and_wait(|cmd| self.record(cmd, scene, cam, opts, ts.as_deref_mut()))?;
-            let stats = self.stats()?;
-            let sort_errs = self.sort.as_ref().map_or(Ok(0), |s| s.take_errors())?;
-            let scan_errs = self.scan.as_ref().map_or(Ok(0), |s| s.take_errors())?;
-            if (sort_errs | scan_errs) & crate::sort::ERR_LOOKBACK != 0 {
-                return Err(Error::Gpu(
-                    "decoupled look-back failed in the frame's scan or sort".into(),
-                ));
-            }
+            // One submission and one wait: the frame, then its stats and error words
+            // copied to host-visible memory.
+            ctx.submit_and_wait(|cmd| {
+                self.record(cmd, scene, cam, opts, ts.as_deref_mut())?;
+                self.record_checks(cmd, None)?;
+                Ok(())
+            })?;
+            let stats = self.checked_stats()?;
             if stats.complete() {
                 return Ok(stats);
             }
+            self.grown += 1;
             if !self.grow_for(&stats)? {
                 return Err(Error::Gpu(format!(
                     "frame incomplete but nothing to grow: {stats:?}"
@@ -710,6 +724,11 @@ impl Renderer {
             }
         }
         Err(Error::Gpu("frame still incomplete after 8 attempts".into()))
+    }
+
+    /// Frames [`Renderer::render_to_device`] found incomplete and rendered again.
+    pub fn frames_grown(&self) -> u64 {
+        self.grown
     }
 
     /// Device bytes held by the frame buffers.

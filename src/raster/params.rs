@@ -96,6 +96,16 @@ push_constants!(SetupPush, kernels::RASTER_FRAME_SETUP);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub(super) struct FrameOkPush {
+    pub(super) stats: u64,
+    pub(super) sort_state: u64,
+    pub(super) scan_state: u64,
+    pub(super) ok: u64,
+}
+push_constants!(FrameOkPush, kernels::RASTER_FRAME_OK);
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct ChunkPush {
     pub(super) params: u64,
     pub(super) chunk: u32,

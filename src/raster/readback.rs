@@ -2,10 +2,14 @@
 //! (shortfalls to grow for), its image and its tile lists.
 
 use super::plan::{FrameGeometry, Plan};
+use ash::vk;
+
 use super::{
-    Renderer, CHANNELS, STATS_WORDS, STAT_FLAGS, STAT_MAX_TILE, STAT_USED, STAT_VISIBLE, TILE,
+    FrameOkPush, Renderer, CHANNELS, CHECK_STATE_WORDS, CHECK_WORDS, STATS_WORDS, STAT_FLAGS,
+    STAT_MAX_TILE, STAT_USED, STAT_VISIBLE, TILE,
 };
 use crate::gpu::glsl::{self, FLAG_ENTRY_OVERFLOW, FLAG_NEED_CHUNKS};
+use crate::gpu::{recorder, Buffer};
 use crate::{Error, Result};
 
 /// A rendered frame (row-major, at the camera's resolution).
@@ -113,6 +117,99 @@ impl Renderer {
         let plan = self.last_plan()?;
         let s: Vec<u32> = self.ctx.download(&self.stats, 0, STATS_WORDS)?;
         Ok(FrameStats::from_words(&s, &plan))
+    }
+
+    /// Records, after a frame in the same command buffer: its stats and its scan's and
+    /// sort's state words copied to host-visible memory (for [`Renderer::checked_stats`]
+    /// once the command buffer completed, with a [`recorder::host_barrier`] after this),
+    /// their sticky error bits cleared, and with `gate`, the word `gate` set to 1 when
+    /// the frame is complete and error-free, else 0 — the predicate of the work recorded
+    /// next ([`recorder::begin_conditional`]; the barrier to it is recorded here).
+    pub fn record_checks(&self, cmd: vk::CommandBuffer, gate: Option<&Buffer>) -> Result<()> {
+        let (Some(sort), Some(scan)) = (self.sort.as_ref(), self.scan.as_ref()) else {
+            return Err(Error::Invalid(
+                "Renderer::record_checks before a frame was recorded".into(),
+            ));
+        };
+        let ctx = &self.ctx;
+        let dev = ctx.device();
+        let state_bytes = (CHECK_STATE_WORDS * 4) as u64;
+        let stats_bytes = (STATS_WORDS * 4) as u64;
+        let copy = |src: &Buffer, dst_offset: u64, size: u64| {
+            let region = [vk::BufferCopy {
+                src_offset: 0,
+                dst_offset,
+                size,
+            }];
+            unsafe { dev.cmd_copy_buffer(cmd, src.raw(), self.checks.raw(), &region) };
+        };
+        copy(&self.stats, 0, stats_bytes);
+        copy(sort.state_buffer(), stats_bytes, state_bytes);
+        copy(scan.state_buffer(), stats_bytes + state_bytes, state_bytes);
+        if let Some(g) = gate {
+            self.k.frame_ok.dispatch(
+                cmd,
+                &FrameOkPush {
+                    stats: self.stats.address(),
+                    sort_state: sort.state_buffer().address(),
+                    scan_state: scan.state_buffer().address(),
+                    ok: g.address(),
+                },
+                [1, 1, 1],
+            );
+        }
+        recorder::barrier(ctx, cmd);
+        let err = (crate::sort::ST_ERRORS * 4) as u64;
+        recorder::fill(ctx, cmd, sort.state_buffer(), err, 4, 0);
+        recorder::fill(ctx, cmd, scan.state_buffer(), err, 4, 0);
+        recorder::barrier(ctx, cmd);
+        if gate.is_some() {
+            recorder::conditional_barrier(ctx, cmd);
+        }
+        Ok(())
+    }
+
+    /// What work recorded after the last frame in the same command buffer may assume
+    /// without reading its stats back: the frame complete, every entry slot of the key
+    /// buffers used, tile lists as long as the chunks recorded cover. Exact only once
+    /// [`Renderer::checked_stats`] confirms the frame complete; until then, record that
+    /// work in the frame's conditional region ([`Renderer::record_checks`] with a gate).
+    pub fn planned_stats(&self) -> Result<FrameStats> {
+        let plan = self.last_plan()?;
+        Ok(FrameStats {
+            entries: u64::from(self.entry_cap),
+            entries_used: self.entry_cap,
+            visible_voxels: 0,
+            max_tile_entries: plan.chunks.saturating_mul(self.chunk_size),
+            entry_overflow: false,
+            need_chunks: false,
+            tiles: plan.tiles,
+            render_width: plan.render_w,
+            render_height: plan.render_h,
+            chunks: plan.chunks,
+            sort_bits: plan.sort_bits,
+        })
+    }
+
+    /// The stats of the last frame recorded with [`Renderer::record_checks`], read from
+    /// host-visible memory (no submission; the command buffer must have completed). A
+    /// failed look-back in the frame's scan or sort is an error.
+    pub fn checked_stats(&self) -> Result<FrameStats> {
+        let plan = self.last_plan()?;
+        let bytes = self
+            .checks
+            .mapped()
+            .ok_or_else(|| Error::Gpu("raster.checks is not host-visible".into()))?;
+        let words: &[u32] = bytemuck::cast_slice(&bytes[..CHECK_WORDS * 4]);
+        let err = crate::sort::ST_ERRORS;
+        let sort_errs = words[STATS_WORDS + err];
+        let scan_errs = words[STATS_WORDS + CHECK_STATE_WORDS + err];
+        if (sort_errs | scan_errs) & crate::sort::ERR_LOOKBACK != 0 {
+            return Err(Error::Gpu(
+                "decoupled look-back failed in the frame's scan or sort".into(),
+            ));
+        }
+        Ok(FrameStats::from_words(&words[..STATS_WORDS], &plan))
     }
 
     /// Grows whatever the last frame found short (entries, chunks). Returns whether

@@ -95,6 +95,12 @@ impl PrefixScan {
         Ok(())
     }
 
+    /// The run-state buffer (sticky errors at word `ST_ERRORS`), for checks recorded
+    /// after a scan.
+    pub(crate) fn state_buffer(&self) -> &crate::gpu::Buffer {
+        &self.run.state
+    }
+
     /// Reads and clears the sticky error bits (see `sort::ERR_*`).
     pub fn take_errors(&self) -> Result<u32> {
         self.run.take_errors(&self.ctx)

@@ -394,6 +394,12 @@ impl RadixSort {
         })
     }
 
+    /// The run-state buffer (counts, dispatch arguments, sticky errors at word
+    /// `ST_ERRORS`), for checks recorded after a sort.
+    pub(crate) fn state_buffer(&self) -> &Buffer {
+        &self.run.state
+    }
+
     /// Reads and clears the sticky error bits (`ERR_OVERFLOW`, `ERR_LOOKBACK`).
     pub fn take_errors(&self) -> Result<u32> {
         self.run.take_errors(&self.ctx)

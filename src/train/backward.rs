@@ -437,7 +437,7 @@ impl Backward {
             }),
             _ => None,
         };
-        let lost = ctx.zeroed_buffer("backward.lost", 16)?;
+        let lost = ctx.counter_buffer("backward.lost", 4)?;
         Ok(Backward {
             ctx: ctx.clone(),
             prepare_k: Kernel::new(ctx, &kernels::TRAIN_GRAD_PREPARE)?,
@@ -732,7 +732,8 @@ impl Backward {
     }
 
     /// Compare-and-swap float adds that gave up (must stay 0; see atomic_f32.glsl).
+    /// Reads host-visible memory: no submission, the backward must have completed.
     pub fn read_lost(&self) -> Result<u32> {
-        Ok(self.ctx.download::<u32>(&self.lost, 0, 1)?[0])
+        self.lost.read_word(0)
     }
 }

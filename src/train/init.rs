@@ -280,6 +280,10 @@ impl Trainer {
             budget,
             budget_source,
             budget_logged: false,
+            go: ctx.zeroed_buffer("train.go", 4)?,
+            last_stats: None,
+            single: ctx.info().conditional_rendering,
+            redone: 0,
         })
     }
 

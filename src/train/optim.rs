@@ -226,7 +226,7 @@ impl Tv {
             reduction,
             partials: GrowBuffer::new("tv.partials"),
             retired: Vec::new(),
-            lost: ctx.buffer_from("tv.lost", &[0u32; 4])?,
+            lost: ctx.counter_buffer("tv.lost", 4)?,
             last_groups: 0,
         })
     }
@@ -293,8 +293,8 @@ impl Tv {
     }
 
     /// Compare-and-swap give-ups since creation (must be 0; always 0 with float atomics).
+    /// Reads host-visible memory: no submission, the TV must have completed.
     pub fn read_lost(&self) -> Result<u32> {
-        let l: Vec<u32> = self.ctx.download(&self.lost, 0, 1)?;
-        Ok(l[0])
+        self.lost.read_word(0)
     }
 }

@@ -5,8 +5,11 @@
 //! threshold, subdivide the top few percent by accumulated priority. Setting a run up
 //! (starting grid, budget, [`Trainer::new`]) is in `init.rs`.
 //!
-//! An iteration is two submissions: the frame (which may grow its buffers and re-render,
-//! so its completeness is known before any gradient is taken) and everything after it.
+//! An iteration is one submission and one fence wait (where the device has conditional
+//! rendering): the frame, its checks, and the update in a region the GPU skips when the
+//! frame came out incomplete; the host then grows the buffers and runs the iteration
+//! again (see [`Trainer::step`]). Stats and give-up counters are read from host-visible
+//! memory, not downloaded.
 //!
 //! Optimiser state across a layout change is *carried*, not reset: surviving parameters
 //! keep their Adam moments, children copy their parent's, new grid points interpolate and
@@ -25,8 +28,10 @@ use super::views::TrainViews;
 use crate::adapt::stats::StatsPass;
 use crate::adapt::topology::Topology;
 use crate::camera::Camera;
+use ash::vk;
+
 use crate::gpu::{recorder, Context, Timestamps};
-use crate::raster::{FrameOutputs, RenderOptions, Renderer};
+use crate::raster::{FrameOutputs, FrameStats, RenderOptions, Renderer};
 use crate::scene::{Scene, SceneGpu};
 use crate::{Error, Result};
 
@@ -71,6 +76,16 @@ pub struct StepInfo {
     pub adapt: Option<AdaptReport>,
 }
 
+/// The loss weights and learning-rate scale of one iteration (the schedule's switches
+/// applied).
+struct IterWeights {
+    dist: f32,
+    nmed: f32,
+    nmean: f32,
+    tv: f32,
+    lr_scale: f32,
+}
+
 /// Per-stage timestamps of the last iteration (ms), when enabled.
 pub type StageTimes = Vec<(String, f64)>;
 
@@ -107,6 +122,14 @@ pub struct Trainer {
     pub(super) budget_source: String,
     /// Whether the budget stopped a subdivision already (logged once).
     pub(super) budget_logged: bool,
+    /// The frame's go word (1: complete), the predicate of the update's conditional
+    /// region (see [`Trainer::step`]).
+    pub(super) go: crate::gpu::Buffer,
+    pub(super) last_stats: Option<FrameStats>,
+    /// One submission per iteration ([`Trainer::set_single_submission`]).
+    pub(super) single: bool,
+    /// Iterations run again over an incomplete frame.
+    pub(super) redone: u64,
 }
 
 impl Trainer {
@@ -155,6 +178,39 @@ impl Trainer {
         self.renderer.counters()
     }
 
+    /// Whether an iteration is one submission (the default where the device has
+    /// conditional rendering) or two, the frame checked on the host before the update
+    /// is recorded (the path for devices without it; tests compare the two).
+    pub fn set_single_submission(&mut self, on: bool) -> Result<()> {
+        if on && !self.ctx.info().conditional_rendering {
+            return Err(Error::Invalid(
+                "one submission per iteration needs VK_EXT_conditional_rendering, which \
+                 this device (or the host that made it) did not enable"
+                    .into(),
+            ));
+        }
+        self.single = on;
+        Ok(())
+    }
+
+    /// Entries per composite and backward dispatch (tests: a small size makes the first
+    /// frames need more dispatches than recorded, so iterations are redone).
+    pub fn set_chunk_size(&mut self, entries: u32) {
+        self.renderer.set_chunk_size(entries);
+        self.backward.set_chunk_size(entries);
+    }
+
+    /// Iterations whose frame came out incomplete and that were run again with grown
+    /// buffers (their first update skipped on the GPU, or never recorded).
+    pub fn frames_redone(&self) -> u64 {
+        self.redone
+    }
+
+    /// The stats of the last iteration's (complete) frame.
+    pub fn frame_stats(&self) -> Option<FrameStats> {
+        self.last_stats
+    }
+
     /// Stage times (ms) of the last iteration: the frame's stages, then losses,
     /// backward, optimizer.
     pub fn stage_times(&self) -> &StageTimes {
@@ -193,6 +249,16 @@ impl Trainer {
     }
 
     /// Runs one iteration; with `measure`, reads back the loss values.
+    ///
+    /// Where the device has conditional rendering, the iteration is one submission and
+    /// one fence wait: the frame, its checks (stats and error words copied to
+    /// host-visible memory, a go word written on the GPU) and, in a region that runs
+    /// only if the frame came out complete, losses, backward, TV and Adam. An
+    /// incomplete frame (entries or tile lists beyond what was recorded) skips the
+    /// update on the GPU; the host grows the buffers and runs the same iteration again,
+    /// so the result is the same as rendering first and checking. Without conditional
+    /// rendering (a host's device that did not enable it) the frame is its own
+    /// submission. Logged iterations read their losses with further waits.
     pub fn step(&mut self, measure: bool) -> Result<StepInfo> {
         let it = self.iter;
         let view = self.next_view();
@@ -205,198 +271,37 @@ impl Trainer {
             samples: cfg.samples,
             supersample: ss,
         };
-        let lambda_dist = if it >= self.schedule.dist_from {
-            cfg.lambda_dist
-        } else {
-            0.0
-        };
-        let lambda_nmed = if it >= self.schedule.normal_dmed_from {
-            cfg.lambda_normal_dmed
-        } else {
-            0.0
-        };
-        let lambda_nmean = if it >= self.schedule.normal_dmean_from {
-            cfg.lambda_normal_dmean
-        } else {
-            0.0
+        let after = |from: u32, value: f32| if it >= from { value } else { 0.0 };
+        let w = IterWeights {
+            dist: after(self.schedule.dist_from, cfg.lambda_dist),
+            nmed: after(self.schedule.normal_dmed_from, cfg.lambda_normal_dmed),
+            nmean: after(self.schedule.normal_dmean_from, cfg.lambda_normal_dmean),
+            tv: if it < self.schedule.tv_until {
+                cfg.lambda_tv
+            } else {
+                0.0
+            },
+            lr_scale: if it >= self.schedule.lr_decay_at {
+                cfg.lr_decay
+            } else {
+                1.0
+            },
         };
         // The frame accumulates only what this iteration's losses read.
         self.renderer.set_outputs(FrameOutputs {
-            normals: lambda_nmed > 0.0 || lambda_nmean > 0.0,
-            distortion: lambda_dist != 0.0,
+            normals: w.nmed > 0.0 || w.nmean > 0.0,
+            distortion: w.dist != 0.0,
         });
         let mut timing = self.timing.take();
-        let stats = self.renderer.render_to_device(
-            &self.scene,
-            &cam,
-            &opts,
-            timing.as_mut().map(|t| &mut t.0),
-        );
-        let stats = match stats {
-            Ok(s) => s,
-            Err(e) => {
-                self.timing = timing;
-                return Err(e);
-            }
-        };
-        let frame = self.renderer.last_frame()?;
-        self.backward.prepare(&frame, self.scene.voxels)?;
-        if (frame.out_width, frame.out_height) != (cam.width, cam.height) {
-            return Err(Error::Invalid(format!(
-                "frame rendered at {}×{}, but training view {view} is {}×{}",
-                frame.out_width, frame.out_height, cam.width, cam.height
-            )));
-        }
-        let nrender = frame.render_width * frame.render_height;
-        self.ssim.prepare(frame.out_width, frame.out_height)?;
-        let gt_addr = self.views.address(view);
-        let out_addr = self.renderer.output_address()?;
-        let dout_addr = self.backward.dout()?.address();
-
-        let lr_scale = if it >= self.schedule.lr_decay_at {
-            cfg.lr_decay
-        } else {
-            1.0
-        };
-        let lambda_tv = if it < self.schedule.tv_until {
-            cfg.lambda_tv
-        } else {
-            0.0
-        };
-        let step = it + 1;
-        let ctx = self.ctx.clone();
-        let res = ctx.submit_and_wait(|cmd| {
-            if let Some(t) = timing.as_mut() {
-                t.1.begin(cmd);
-            }
-            self.loss.record(
-                cmd,
-                &frame,
-                out_addr,
-                gt_addr,
-                dout_addr,
-                LossWeights {
-                    mse: cfg.lambda_mse,
-                    t_concentration: cfg.lambda_t,
-                    t_inside: cfg.lambda_t_inside,
-                },
-            )?;
-            if lambda_nmed > 0.0 || lambda_nmean > 0.0 {
-                self.normal
-                    .record(cmd, &cam, out_addr, dout_addr, lambda_nmed, lambda_nmean)?;
-            }
-            if cfg.lambda_ssim > 0.0 {
-                self.ssim.record(
-                    cmd,
-                    out_addr,
-                    gt_addr,
-                    dout_addr,
-                    -cfg.lambda_ssim,
-                    frame.out_width,
-                    frame.out_height,
-                )?;
-            }
-            if let Some(t) = timing.as_mut() {
-                t.1.mark(cmd, "losses");
-            }
-            let tv = &mut self.tv;
-            let scene = &self.scene;
-            self.backward.record_timed(
-                cmd,
-                &frame,
-                &stats,
-                scene,
-                cfg.samples,
-                &self.grads,
-                &EntryLosses {
-                    lambda_dist: lambda_dist / nrender as f32,
-                    lambda_r: cfg.lambda_r / nrender as f32,
-                },
-                timing.as_mut().map(|t| &mut t.1),
-                |cmd, geo_target| {
-                    // TV adds to the density gradients (the grid points', or the
-                    // ordered reduction's voxel corners before their gather).
-                    if lambda_tv > 0.0 {
-                        tv.record(
-                            cmd,
-                            scene.corners.address(),
-                            scene.geo.address(),
-                            geo_target,
-                            scene.voxels,
-                            lambda_tv,
-                        )?;
-                        recorder::barrier(&ctx, cmd);
-                    }
-                    Ok(())
-                },
-            )?;
-            if let Some(t) = timing.as_mut() {
-                t.1.mark(cmd, "backward.tv");
-            }
-            let groups = [
-                (
-                    "optimizer.geo",
-                    &self.scene.geo,
-                    &self.grads.geo,
-                    &self.mom[0],
-                    self.scene.grid_points as u64,
-                    self.schedule.lr_geo,
-                ),
-                (
-                    "optimizer.sh0",
-                    &self.scene.sh0,
-                    &self.grads.sh0,
-                    &self.mom[1],
-                    self.scene.voxels as u64 * 3,
-                    cfg.lr_sh0,
-                ),
-                (
-                    "optimizer.shs",
-                    &self.scene.shs,
-                    &self.grads.shs,
-                    &self.mom[2],
-                    // The whole blocked device layout (padding stays zero).
-                    crate::scene::shs_device_len(
-                        self.scene.voxels as usize,
-                        3 * self.scene.shs_per_voxel as usize,
-                    ) as u64,
-                    cfg.lr_shs,
-                ),
-            ];
-            for (label, p, g, m, count, lr) in groups {
-                if count == 0 {
-                    continue;
-                }
-                self.adam.record(
-                    cmd,
-                    p.address(),
-                    g.address(),
-                    m.m.address(),
-                    m.v.address(),
-                    count as u32,
-                    step,
-                    &AdamConfig {
-                        lr: lr * lr_scale,
-                        beta1: cfg.beta1,
-                        beta2: cfg.beta2,
-                        eps: cfg.eps,
-                        skip_zero: cfg.sparse_adam,
-                    },
-                );
-                if let Some(t) = timing.as_mut() {
-                    t.1.mark(cmd, label);
-                }
-            }
-            recorder::barrier(&ctx, cmd);
-            Ok(())
-        });
-        if let Some(t) = timing.as_ref() {
+        let res = self.run_iteration(view, &cam, &opts, &w, it + 1, &mut timing);
+        if let (Some(t), Ok(_)) = (timing.as_ref(), res.as_ref()) {
             let mut all = t.0.stages()?;
             all.extend(t.1.stages()?);
             self.last_times = all;
         }
         self.timing = timing;
-        res?;
+        let stats = res?;
+        self.last_stats = Some(stats);
         if self.backward.read_lost()? != 0 || self.tv.read_lost()? != 0 {
             return Err(Error::Gpu(
                 "compare-and-swap float adds gave up under contention: gradients are incomplete"
@@ -405,7 +310,7 @@ impl Trainer {
         }
         self.iter += 1;
         let losses = if measure {
-            Some(self.read_losses(lambda_dist, lambda_tv, (lambda_nmed, lambda_nmean))?)
+            Some(self.read_losses(w.dist, w.tv, (w.nmed, w.nmean))?)
         } else {
             None
         };
@@ -422,6 +327,221 @@ impl Trainer {
             losses,
             adapt,
         })
+    }
+
+    /// Renders view `view` and takes its training step (Adam step number `step`),
+    /// growing the frame buffers and repeating until the frame is complete; returns the
+    /// complete frame's stats.
+    fn run_iteration(
+        &mut self,
+        view: usize,
+        cam: &Camera,
+        opts: &RenderOptions,
+        w: &IterWeights,
+        step: u32,
+        timing: &mut Option<(Timestamps, Timestamps)>,
+    ) -> Result<FrameStats> {
+        let ctx = self.ctx.clone();
+        if !self.single {
+            let redone = self.renderer.frames_grown();
+            let stats = self.renderer.render_to_device(
+                &self.scene,
+                cam,
+                opts,
+                timing.as_mut().map(|t| &mut t.0),
+            )?;
+            ctx.submit_and_wait(|cmd| {
+                self.record_update(cmd, view, cam, &stats, w, step, timing)?;
+                Ok(())
+            })?;
+            self.redone += self.renderer.frames_grown() - redone;
+            return Ok(stats);
+        }
+        for _attempt in 0..8 {
+            self.renderer.prepare(&self.scene, cam, opts)?;
+            ctx.submit_and_wait(|cmd| {
+                self.renderer.record(
+                    cmd,
+                    &self.scene,
+                    cam,
+                    opts,
+                    timing.as_mut().map(|t| &mut t.0),
+                )?;
+                self.renderer.record_checks(cmd, Some(&self.go))?;
+                let planned = self.renderer.planned_stats()?;
+                recorder::begin_conditional(&ctx, cmd, &self.go, 0)?;
+                self.record_update(cmd, view, cam, &planned, w, step, timing)?;
+                recorder::end_conditional(&ctx, cmd)?;
+                Ok(())
+            })?;
+            let stats = self.renderer.checked_stats()?;
+            if stats.complete() {
+                return Ok(stats);
+            }
+            // The update was skipped on the GPU: grow and run the iteration again.
+            self.redone += 1;
+            if !self.renderer.grow_for(&stats)? {
+                return Err(Error::Gpu(format!(
+                    "frame incomplete but nothing to grow: {stats:?}"
+                )));
+            }
+        }
+        Err(Error::Gpu("frame still incomplete after 8 attempts".into()))
+    }
+
+    /// Records the update of the frame just recorded (`stats`: its stats, or what the
+    /// frame's plan lets the update assume): losses against view `view`, backward with
+    /// TV, and the Adam step of every parameter group.
+    #[allow(clippy::too_many_arguments)]
+    fn record_update(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        view: usize,
+        cam: &Camera,
+        stats: &FrameStats,
+        w: &IterWeights,
+        step: u32,
+        timing: &mut Option<(Timestamps, Timestamps)>,
+    ) -> Result<()> {
+        let cfg = self.cfg.clone();
+        let ctx = self.ctx.clone();
+        let frame = self.renderer.last_frame()?;
+        if (frame.out_width, frame.out_height) != (cam.width, cam.height) {
+            return Err(Error::Invalid(format!(
+                "frame rendered at {}×{}, but training view {view} is {}×{}",
+                frame.out_width, frame.out_height, cam.width, cam.height
+            )));
+        }
+        self.backward.prepare(&frame, self.scene.voxels)?;
+        let nrender = frame.render_width * frame.render_height;
+        self.ssim.prepare(frame.out_width, frame.out_height)?;
+        let gt_addr = self.views.address(view);
+        let out_addr = self.renderer.output_address()?;
+        let dout_addr = self.backward.dout()?.address();
+        if let Some(t) = timing.as_mut() {
+            t.1.begin(cmd);
+        }
+        self.loss.record(
+            cmd,
+            &frame,
+            out_addr,
+            gt_addr,
+            dout_addr,
+            LossWeights {
+                mse: cfg.lambda_mse,
+                t_concentration: cfg.lambda_t,
+                t_inside: cfg.lambda_t_inside,
+            },
+        )?;
+        if w.nmed > 0.0 || w.nmean > 0.0 {
+            self.normal
+                .record(cmd, cam, out_addr, dout_addr, w.nmed, w.nmean)?;
+        }
+        if cfg.lambda_ssim > 0.0 {
+            self.ssim.record(
+                cmd,
+                out_addr,
+                gt_addr,
+                dout_addr,
+                -cfg.lambda_ssim,
+                frame.out_width,
+                frame.out_height,
+            )?;
+        }
+        if let Some(t) = timing.as_mut() {
+            t.1.mark(cmd, "losses");
+        }
+        let tv = &mut self.tv;
+        let scene = &self.scene;
+        let lambda_tv = w.tv;
+        self.backward.record_timed(
+            cmd,
+            &frame,
+            stats,
+            scene,
+            cfg.samples,
+            &self.grads,
+            &EntryLosses {
+                lambda_dist: w.dist / nrender as f32,
+                lambda_r: cfg.lambda_r / nrender as f32,
+            },
+            timing.as_mut().map(|t| &mut t.1),
+            |cmd, geo_target| {
+                // TV adds to the density gradients (the grid points', or the
+                // ordered reduction's voxel corners before their gather).
+                if lambda_tv > 0.0 {
+                    tv.record(
+                        cmd,
+                        scene.corners.address(),
+                        scene.geo.address(),
+                        geo_target,
+                        scene.voxels,
+                        lambda_tv,
+                    )?;
+                    recorder::barrier(&ctx, cmd);
+                }
+                Ok(())
+            },
+        )?;
+        if let Some(t) = timing.as_mut() {
+            t.1.mark(cmd, "backward.tv");
+        }
+        let groups = [
+            (
+                "optimizer.geo",
+                &self.scene.geo,
+                &self.grads.geo,
+                &self.mom[0],
+                self.scene.grid_points as u64,
+                self.schedule.lr_geo,
+            ),
+            (
+                "optimizer.sh0",
+                &self.scene.sh0,
+                &self.grads.sh0,
+                &self.mom[1],
+                self.scene.voxels as u64 * 3,
+                cfg.lr_sh0,
+            ),
+            (
+                "optimizer.shs",
+                &self.scene.shs,
+                &self.grads.shs,
+                &self.mom[2],
+                // The whole blocked device layout (padding stays zero).
+                crate::scene::shs_device_len(
+                    self.scene.voxels as usize,
+                    3 * self.scene.shs_per_voxel as usize,
+                ) as u64,
+                cfg.lr_shs,
+            ),
+        ];
+        for (label, p, g, m, count, lr) in groups {
+            if count == 0 {
+                continue;
+            }
+            self.adam.record(
+                cmd,
+                p.address(),
+                g.address(),
+                m.m.address(),
+                m.v.address(),
+                count as u32,
+                step,
+                &AdamConfig {
+                    lr: lr * w.lr_scale,
+                    beta1: cfg.beta1,
+                    beta2: cfg.beta2,
+                    eps: cfg.eps,
+                    skip_zero: cfg.sparse_adam,
+                },
+            );
+            if let Some(t) = timing.as_mut() {
+                t.1.mark(cmd, label);
+            }
+        }
+        recorder::barrier(&ctx, cmd);
+        Ok(())
     }
 
     /// The voxel budget in force (see [`voxel_budget`]).

@@ -183,6 +183,7 @@ impl Host {
             debug_utils: true,
             float_atomic_add: false,
             full_subgroups: false,
+            conditional_rendering: false,
         })
         .expect("borrow the host device")
     }
