@@ -6,12 +6,14 @@ mod buffer;
 mod context;
 mod device;
 mod kernel;
+mod queue;
 pub mod recorder;
 
 pub use buffer::{Buffer, GrowBuffer, Memory};
-pub use context::{BorrowedHandles, Context, ContextOptions, MemoryBudget, QueueCounters};
+pub use context::{BorrowedHandles, Context, ContextOptions, MemoryBudget};
 pub use device::DeviceInfo;
 pub use kernel::{Kernel, KernelSource, LazyKernel};
+pub use queue::QueueCounters;
 pub use recorder::Timestamps;
 
 // `gpu_layout!`: compile-time checks of the Rust mirrors of the GLSL buffer-reference
