@@ -10,7 +10,7 @@ use common::forward::{assert_within, compare, pixel, render, Errors};
 use common::reference::{self, RefPixel};
 use common::{camera_inside, camera_outside, context, finish, random_scene, scattered_scene, Rng};
 use svraster::data::Camera;
-use svraster::raster::{FrameOutputs, RenderOptions, Renderer};
+use svraster::raster::{FrameOutputs, Image, RenderOptions, Renderer};
 use svraster::scene::SceneGpu;
 use svraster::scene::{octpath_from_ijk, Scene};
 
@@ -630,6 +630,77 @@ fn chunking_and_capacity_growth_give_identical_frames() {
 /// The two hard limits of the entry encoding are refused up front with one clear error
 /// (README: Numerical limits): pixel rectangles pack each coordinate in 16 bits (at most
 /// 65 535 pixels per render edge) and entry values keep the voxel id in 29 bits.
+/// Frames queued behind each other (`render_each`, what `render` and `eval` use) give
+/// exactly the frames rendered one by one, including frames that come out incomplete
+/// (small chunks, small entry capacity) while the next one is queued; a warm pass is
+/// one submission per frame and one drain in all.
+#[test]
+fn queued_frames_match_frames_rendered_one_by_one() {
+    let ctx = context();
+    let scene = block_scene([0.1, -0.2, 0.3], 2.5, 5, -1.5);
+    // Far and near views in turn: tile lists grow and shrink from frame to frame.
+    let cams: Vec<Camera> = [3.2, 1.5, 4.5, 1.2, 2.0, 5.5, 1.8, 2.6]
+        .iter()
+        .enumerate()
+        .map(|(i, &d)| {
+            let a = i as f64 * 0.7;
+            Camera::look_at(
+                [0.1 + d * a.cos(), -0.2 + d * a.sin(), 0.3 + 0.4 * d],
+                [0.1, -0.2, 0.3],
+                [0.0, 0.0, 1.0],
+                1.1,
+                96 + 8 * i as u32,
+                72,
+            )
+        })
+        .collect();
+    let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+    let opts = RenderOptions {
+        samples: 1,
+        supersample: 1.5,
+    };
+    let mut one = Renderer::new(&ctx).unwrap();
+    let want: Vec<Image> = cams
+        .iter()
+        .map(|c| one.render(&gpu, c, &opts).unwrap().0)
+        .collect();
+    let mut r = Renderer::new(&ctx).unwrap();
+    r.set_chunk_size(40);
+    for pass in 0..2 {
+        let c0 = ctx.queue_counters();
+        let grown0 = r.frames_grown();
+        let mut order = Vec::new();
+        r.render_each(&gpu, &cams, &opts, |i, img, st| -> svraster::Result<()> {
+            assert!(st.complete(), "frame {i}: {st:?}");
+            let w = &want[i];
+            assert_eq!((img.width, img.height), (w.width, w.height), "frame {i}");
+            assert!(img.rgb == w.rgb, "frame {i}: colours differ (pass {pass})");
+            assert!(img.alpha == w.alpha, "frame {i}: alpha differs");
+            assert!(img.depth == w.depth, "frame {i}: depth differs");
+            assert!(
+                img.depth_median == w.depth_median,
+                "frame {i}: median differs"
+            );
+            order.push(i);
+            Ok(())
+        })
+        .unwrap();
+        let c = ctx.queue_counters() - c0;
+        let grown = r.frames_grown() - grown0;
+        println!("pass {pass}: {c:?}, {grown} frames rendered again");
+        assert_eq!(order, (0..cams.len()).collect::<Vec<_>>());
+        if pass == 0 {
+            assert!(grown >= 2, "the small chunks must make frames incomplete");
+        } else {
+            assert_eq!(grown, 0);
+            assert_eq!(c.submits, cams.len() as u64);
+            assert_eq!(c.fence_waits, 1, "only the last frame drains the queue");
+            assert_eq!(c.throttle_waits, cams.len() as u64 - 1);
+        }
+    }
+    finish(&ctx);
+}
+
 #[test]
 fn edge_and_voxel_id_limits_are_clear_errors() {
     let ctx = context();

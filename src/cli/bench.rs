@@ -288,12 +288,10 @@ fn bench_render(
     let mut balance = Vec::new();
     for _ in 0..runs {
         for cam in &cams {
-            let c0 = ctx.queue_counters();
             let t = Instant::now();
             let st = r.render_to_device(&gpu, cam, &opts, Some(&mut ts))?;
             let wall = t.elapsed().as_secs_f64() * 1e3;
             wall_ms.push(wall);
-            queue.push(ctx.queue_counters() - c0, wall);
             balance.push(tile_balance(&st));
             let s = ts.stages()?;
             frame_ms.push(s.iter().map(|(_, ms)| ms).sum());
@@ -309,6 +307,23 @@ fn bench_render(
             entries.push(st.entries as f64);
             visible.push(st.visible_voxels as f64);
         }
+    }
+    // The frames above were each waited for (to read their timestamps). `render` and
+    // `eval` queue each frame behind the next and read its image from mapped memory
+    // (Renderer::render_each): the wall time between frames handed over is the
+    // throughput, and the queue traffic what a steady frame costs the host.
+    let mut queued_ms = Vec::new();
+    for _ in 0..runs {
+        let mut c0 = ctx.queue_counters();
+        let mut t = Instant::now();
+        r.render_each(&gpu, &cams, &opts, |_, _, _| -> anyhow::Result<()> {
+            let wall = t.elapsed().as_secs_f64() * 1e3;
+            queue.push(ctx.queue_counters() - c0, wall);
+            queued_ms.push(wall);
+            c0 = ctx.queue_counters();
+            t = Instant::now();
+            Ok(())
+        })?;
     }
     // Work counters from separate frames (the counting kernel is slower).
     r.set_counters(true)?;
@@ -335,7 +350,8 @@ fn bench_render(
             "samples": opts.samples,
             "supersample": opts.supersample,
             "median_ms": median(&frame_ms),
-            "wall_median_ms": median(&wall_ms),
+            "wall_median_ms": median(&queued_ms),
+            "wall_waited_median_ms": median(&wall_ms),
             "stages_median_ms": stage_medians.iter().cloned().collect::<BTreeMap<_, _>>(),
             "visible_voxels_median": median(&visible),
             "entries_median": median(&entries),
@@ -360,8 +376,10 @@ fn bench_render(
             ctx.info().name
         );
         println!(
-            "  median {:.2} ms per frame (GPU timestamps), {:.2} ms wall",
+            "  median {:.2} ms per frame (GPU timestamps), {:.2} ms wall queued with the \
+             image read back ({:.2} ms waiting for each, no read-back)",
             median(&frame_ms),
+            median(&queued_ms),
             median(&wall_ms)
         );
         for (n, ms) in &stage_medians {
@@ -450,14 +468,12 @@ fn bench_train(
     let mut balance = Vec::new();
     let mut walk_groups = Vec::new();
     for i in 0..warmup + iters {
-        let c0 = ctx.queue_counters();
         let w = Instant::now();
         sh_used = t.step(false)?.sh_degree;
         let wall_ms = w.elapsed().as_secs_f64() * 1e3;
         if i < warmup {
             continue;
         }
-        queue.push(ctx.queue_counters() - c0, wall_ms);
         if let Some(st) = t.frame_stats() {
             balance.push(tile_balance(&st));
             walk_groups.push(st.tiles as f64);
@@ -476,6 +492,23 @@ fn bench_train(
         }
         wall.push(wall_ms);
     }
+    // The iterations above were each waited for (to read their timestamps). Training
+    // queues each iteration behind the next: its wall time per iteration is the
+    // throughput, and its queue traffic what a steady iteration costs the host.
+    t.set_timing(false)?;
+    let mut queued_wall = Vec::new();
+    for i in 0..warmup + iters {
+        let c0 = ctx.queue_counters();
+        let w = Instant::now();
+        t.step(false)?;
+        let wall_ms = w.elapsed().as_secs_f64() * 1e3;
+        if i < warmup {
+            continue;
+        }
+        queue.push(ctx.queue_counters() - c0, wall_ms);
+        queued_wall.push(wall_ms);
+    }
+    t.flush()?;
     // Work counters from separate iterations (the counting kernels are slower).
     t.set_counters(true)?;
     let mut counted = Vec::new();
@@ -512,7 +545,8 @@ fn bench_train(
             "reduction": t.reduction().name(),
             "iters": iters,
             "median_ms_per_iter": median(&total),
-            "wall_median_ms_per_iter": median(&wall),
+            "wall_median_ms_per_iter": median(&queued_wall),
+            "wall_waited_median_ms_per_iter": median(&wall),
             "stages_median_ms": med.iter().map(|(k, v)| (k.to_string(), *v)).collect::<BTreeMap<_, _>>(),
             "parts_median_ms": part_order.iter().map(|k| (k.clone(), median(&parts[k]))).collect::<BTreeMap<_, _>>(),
             "subgroup_size": ctx.info().subgroup_size,
@@ -535,8 +569,10 @@ fn bench_train(
             iters
         );
         println!(
-            "median {:.1} ms per iteration on the GPU timeline (wall {:.1} ms)",
+            "median {:.1} ms per iteration on the GPU timeline; wall {:.1} ms queued \
+             ({:.1} ms waiting for each)",
             median(&total),
+            median(&queued_wall),
             median(&wall)
         );
         println!(
@@ -558,7 +594,8 @@ fn bench_train(
 }
 
 /// What the host spends per timed iteration or frame besides the kernels: queue
-/// submissions, blocking fence waits and the milliseconds it was busy outside them
+/// submissions, blocking fence waits (the queue drained), throttle waits (for an older
+/// submission while a newer one runs) and the milliseconds it was busy outside both
 /// (recording, submitting, reading mapped results; on a CPU device the waits hold the
 /// kernels' own time, so there `host_ms` is what the host adds on top).
 #[derive(Default)]
@@ -566,6 +603,8 @@ struct QueueCost {
     submits: Vec<f64>,
     waits: Vec<f64>,
     wait_ms: Vec<f64>,
+    throttles: Vec<f64>,
+    throttle_ms: Vec<f64>,
     host_ms: Vec<f64>,
 }
 
@@ -574,24 +613,34 @@ impl QueueCost {
         self.submits.push(c.submits as f64);
         self.waits.push(c.fence_waits as f64);
         self.wait_ms.push(c.wait_ms);
-        self.host_ms.push((wall_ms - c.wait_ms).max(0.0));
+        self.throttles.push(c.throttle_waits as f64);
+        self.throttle_ms.push(c.throttle_ms);
+        self.host_ms
+            .push((wall_ms - c.wait_ms - c.throttle_ms).max(0.0));
     }
     fn json(&self) -> serde_json::Value {
+        let max = |v: &[f64]| v.iter().cloned().fold(0.0, f64::max);
         serde_json::json!({
             "submits_median": median(&self.submits),
-            "submits_max": self.submits.iter().cloned().fold(0.0, f64::max),
+            "submits_max": max(&self.submits),
             "fence_waits_median": median(&self.waits),
-            "fence_waits_max": self.waits.iter().cloned().fold(0.0, f64::max),
+            "fence_waits_max": max(&self.waits),
             "wait_ms_median": median(&self.wait_ms),
+            "throttle_waits_median": median(&self.throttles),
+            "throttle_waits_max": max(&self.throttles),
+            "throttle_ms_median": median(&self.throttle_ms),
             "host_ms_median": median(&self.host_ms),
         })
     }
     fn text(&self) -> String {
         format!(
-            "{:.0} submissions, {:.0} fence waits ({:.2} ms blocked), host {:.2} ms outside waits (medians)",
+            "{:.0} submissions, {:.0} fence waits ({:.2} ms blocked), {:.0} throttle waits \
+             ({:.2} ms), host {:.2} ms outside waits (medians)",
             median(&self.submits),
             median(&self.waits),
             median(&self.wait_ms),
+            median(&self.throttles),
+            median(&self.throttle_ms),
             median(&self.host_ms)
         )
     }

@@ -204,7 +204,6 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
     let gpu = SceneGpu::upload(ctx, &scene)?;
     let mut r = Renderer::new(ctx)?;
     let mut total_psnr = 0.0;
-    let mut ms = 0.0;
     let names = output_names(
         &ds.frames
             .iter()
@@ -212,10 +211,11 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
             .collect::<Vec<_>>(),
     );
     let mut progress = super::progress::Progress::new("render", ds.frames.len() as u64);
-    for (i, f) in ds.frames.iter().enumerate() {
-        let t = Instant::now();
-        let (img, _) = r.render(&gpu, &f.camera, &opts)?;
-        ms += t.elapsed().as_secs_f64() * 1e3;
+    // Frames queued behind each other: PNGs are written while the next frame renders.
+    let cams: Vec<Camera> = ds.frames.iter().map(|f| f.camera.clone()).collect();
+    let t = Instant::now();
+    r.render_each(&gpu, &cams, &opts, |i, img, _| -> anyhow::Result<()> {
+        let f = &ds.frames[i];
         let p = svraster::eval::psnr(&img.rgb, &f.rgb);
         total_psnr += p;
         write_image(&a.out, &names[i], &img, a.depth, a.normal, &scene.world)?;
@@ -237,7 +237,9 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
             )?;
         }
         progress.update(i as u64 + 1, || format!("{}: PSNR {p:.2} dB", f.name));
-    }
+        Ok(())
+    })?;
+    let ms = t.elapsed().as_secs_f64() * 1e3;
     progress.finish();
     let n = ds.frames.len() as f64;
     Ok((total_psnr / n, ms / n))

@@ -498,7 +498,7 @@ pub fn run_eval(
         println!("{}", serde_json::to_string(&rep)?);
     } else {
         println!(
-            "{} views of `{split}` at {}{}×{} (supersampling {}): PSNR {:.2} dB, SSIM {:.4}, {:.1} ms per frame (median, render only)",
+            "{} views of `{split}` at {}{}×{} (supersampling {}): PSNR {:.2} dB, SSIM {:.4}, {:.1} ms per frame (median, frames queued, read-back included, scoring excluded)",
             rep.views,
             if rep.sizes_differ { "up to " } else { "" },
             rep.width,

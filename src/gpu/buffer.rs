@@ -74,15 +74,13 @@ impl Buffer {
 }
 
 impl Drop for Buffer {
+    /// Frees the buffer, or parks it until the submissions pending now completed (they
+    /// may use it; see [`Context::submit`]).
     fn drop(&mut self) {
-        if let Some(a) = self.allocation.take() {
-            if let Ok(mut guard) = self.inner.allocator.lock() {
-                if let Some(alloc) = guard.as_mut() {
-                    let _ = alloc.free(a);
-                }
-            }
+        let allocation = self.allocation.take();
+        if let Some((raw, allocation)) = self.inner.queue_state.park(self.raw, allocation) {
+            super::queue::free_buffer(&self.inner, raw, allocation);
         }
-        unsafe { self.inner.device.destroy_buffer(self.raw, None) };
     }
 }
 

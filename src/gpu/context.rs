@@ -73,7 +73,7 @@ pub(crate) struct Inner {
     /// Guards `queue` (Vulkan requires external synchronisation) and the command pool.
     pub submit: Mutex<vk::CommandPool>,
     pub conditional: Option<ash::ext::conditional_rendering::Device>,
-    pub(crate) queue_stats: super::queue::QueueStats,
+    pub(crate) queue_state: super::queue::QueueState,
 }
 
 // SAFETY: the raw ValidationLog pointer is only read through `&` and the log is Sync.
@@ -597,7 +597,7 @@ impl Context {
                 pipeline_cache,
                 submit: Mutex::new(pool),
                 conditional,
-                queue_stats: Default::default(),
+                queue_state: Default::default(),
             }),
         })
     }
@@ -697,6 +697,8 @@ impl Drop for Inner {
     fn drop(&mut self) {
         unsafe {
             let _ = self.device.device_wait_idle();
+            super::queue::destroy_in_flight(self);
+            super::queue::free_parked(self, true);
             if let Ok(pool) = self.submit.lock() {
                 self.device.destroy_command_pool(*pool, None);
             }

@@ -13,7 +13,7 @@ pub use buffer::{Buffer, GrowBuffer, Memory};
 pub use context::{BorrowedHandles, Context, ContextOptions, MemoryBudget};
 pub use device::DeviceInfo;
 pub use kernel::{Kernel, KernelSource, LazyKernel};
-pub use queue::QueueCounters;
+pub use queue::{QueueCounters, Ticket};
 pub use recorder::Timestamps;
 
 // `gpu_layout!`: compile-time checks of the Rust mirrors of the GLSL buffer-reference

@@ -34,6 +34,7 @@ pub mod host;
 mod params;
 mod plan;
 mod readback;
+mod stream;
 use crate::scene::SceneGpu;
 pub(crate) use counters::COUNTER_WORDS;
 pub use counters::{WalkCounters, WorkCounters};
@@ -41,7 +42,7 @@ pub(crate) use params::AUX_CHANNELS;
 use params::{ChunkPush, FrameOkPush, FrameParams, ParamsPush, SetupPush};
 use plan::Plan;
 pub use plan::{FrameGeometry, FrameOutputs};
-pub use readback::{FrameStats, Image};
+pub use readback::{FrameCheck, FrameStats, Gate, Image, CHECK_SLOTS};
 
 use crate::camera::Camera;
 use crate::gpu::{
@@ -160,10 +161,14 @@ pub struct Renderer {
     out_img: GrowBuffer,
     last_id: GrowBuffer,
     aux: GrowBuffer,
+    /// Host-visible copies of queued frames' images ([`Renderer::render_each`]).
+    image_slots: [GrowBuffer; 2],
     stats: Buffer,
     /// Host-visible copy of a frame's stats and its scan's and sort's state words
     /// (`record_checks`): read without a submission once the frame completed.
     checks: Buffer,
+    /// Frames that recorded their checks so far (picks the slot, dates a FrameCheck).
+    check_seq: u64,
     params: Buffer,
     last: Option<Plan>,
     maxw_target: u64,
@@ -229,7 +234,11 @@ impl Renderer {
 
     fn with_kernels(ctx: &Context, k: Arc<RasterKernels>) -> Result<Renderer> {
         let stats = ctx.buffer("raster.stats", STATS_WORDS as u64 * 4, Memory::Device)?;
-        let checks = ctx.buffer("raster.checks", CHECK_WORDS as u64 * 4, Memory::Readback)?;
+        let checks = ctx.buffer(
+            "raster.checks",
+            (CHECK_SLOTS * CHECK_WORDS) as u64 * 4,
+            Memory::Readback,
+        )?;
         let params = ctx.buffer(
             "raster.params",
             std::mem::size_of::<FrameParams>() as u64,
@@ -263,8 +272,13 @@ impl Renderer {
             out_img: GrowBuffer::new("raster.out-image"),
             last_id: GrowBuffer::new("raster.last-contributor"),
             aux: GrowBuffer::new("raster.aux"),
+            image_slots: [
+                GrowBuffer::with_memory("raster.image-slot-0", Memory::Readback),
+                GrowBuffer::with_memory("raster.image-slot-1", Memory::Readback),
+            ],
             stats,
             checks,
+            check_seq: 0,
             params,
             last: None,
             maxw_target: 0,
@@ -707,12 +721,11 @@ impl Renderer {
             let ctx = self.ctx.clone();
             // One submission and one wait: the frame, then its stats and error words
             // copied to host-visible memory.
-            ctx.submit_and_wait(|cmd| {
+            let check = ctx.submit_and_wait(|cmd| {
                 self.record(cmd, scene, cam, opts, ts.as_deref_mut())?;
-                self.record_checks(cmd, None)?;
-                Ok(())
+                self.record_checks(cmd, None)
             })?;
-            let stats = self.checked_stats()?;
+            let stats = self.checked_stats(&check)?;
             if stats.complete() {
                 return Ok(stats);
             }

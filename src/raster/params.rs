@@ -101,6 +101,7 @@ pub(super) struct FrameOkPush {
     pub(super) sort_state: u64,
     pub(super) scan_state: u64,
     pub(super) ok: u64,
+    pub(super) after: u64,
 }
 push_constants!(FrameOkPush, kernels::RASTER_FRAME_OK);
 

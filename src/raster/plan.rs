@@ -50,6 +50,16 @@ impl Default for FrameOutputs {
 }
 
 impl Plan {
+    /// Size of the frame's output image: the downsampled copy of a supersampled frame,
+    /// else the render itself.
+    pub(super) fn output_size(&self) -> (u32, u32) {
+        if self.supersampled {
+            (self.out_w, self.out_h)
+        } else {
+            (self.render_w, self.render_h)
+        }
+    }
+
     /// The sort result lands in the alternate buffers after an odd number of passes.
     pub(super) fn sorted_in_alt(&self) -> bool {
         self.sort_bits.div_ceil(8) % 2 == 1

@@ -12,6 +12,29 @@ use crate::gpu::glsl::{self, FLAG_ENTRY_OVERFLOW, FLAG_NEED_CHUNKS};
 use crate::gpu::{recorder, Buffer};
 use crate::{Error, Result};
 
+/// Frames whose checks stay readable at once ([`Renderer::record_checks`]): the frame
+/// running and the one queued behind it.
+pub const CHECK_SLOTS: usize = 2;
+
+/// Where a frame's checks landed ([`Renderer::record_checks`]); read them with
+/// [`Renderer::checked_stats`] once the frame's submission completed.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameCheck {
+    slot: usize,
+    seq: u64,
+    pub(super) plan: Plan,
+}
+
+/// The go word a frame's checks write ([`Renderer::record_checks`]): the u32 of `go` at
+/// byte `offset`. With `after`, an earlier frame's go word (buffer, byte offset) that
+/// must be 1 too: work queued behind a skipped update is skipped with it.
+#[derive(Clone, Copy)]
+pub struct Gate<'a> {
+    pub go: &'a Buffer,
+    pub offset: u64,
+    pub after: Option<(&'a Buffer, u64)>,
+}
+
 /// A rendered frame (row-major, at the camera's resolution).
 #[derive(Clone, Debug, Default)]
 pub struct Image {
@@ -122,15 +145,27 @@ impl Renderer {
     /// Records, after a frame in the same command buffer: its stats and its scan's and
     /// sort's state words copied to host-visible memory (for [`Renderer::checked_stats`]
     /// once the command buffer completed, with a [`recorder::host_barrier`] after this),
-    /// their sticky error bits cleared, and with `gate`, the word `gate` set to 1 when
-    /// the frame is complete and error-free, else 0 — the predicate of the work recorded
-    /// next ([`recorder::begin_conditional`]; the barrier to it is recorded here).
-    pub fn record_checks(&self, cmd: vk::CommandBuffer, gate: Option<&Buffer>) -> Result<()> {
+    /// their sticky error bits cleared, and with `gate`, the gate's go word set to 1 when
+    /// the frame is complete and error-free (and the word it chains after is 1), else
+    /// 0 — the predicate of the work recorded next ([`recorder::begin_conditional`]; the
+    /// barrier to it is recorded here). The checks land in one of [`CHECK_SLOTS`] slots
+    /// in turn: the returned [`FrameCheck`] reads them until as many newer frames
+    /// recorded theirs.
+    pub fn record_checks(
+        &mut self,
+        cmd: vk::CommandBuffer,
+        gate: Option<Gate>,
+    ) -> Result<FrameCheck> {
         let (Some(sort), Some(scan)) = (self.sort.as_ref(), self.scan.as_ref()) else {
             return Err(Error::Invalid(
                 "Renderer::record_checks before a frame was recorded".into(),
             ));
         };
+        let plan = self.last_plan()?;
+        self.check_seq += 1;
+        let seq = self.check_seq;
+        let slot = (seq % CHECK_SLOTS as u64) as usize;
+        let base = (slot * CHECK_WORDS * 4) as u64;
         let ctx = &self.ctx;
         let dev = ctx.device();
         let state_bytes = (CHECK_STATE_WORDS * 4) as u64;
@@ -138,7 +173,7 @@ impl Renderer {
         let copy = |src: &Buffer, dst_offset: u64, size: u64| {
             let region = [vk::BufferCopy {
                 src_offset: 0,
-                dst_offset,
+                dst_offset: base + dst_offset,
                 size,
             }];
             unsafe { dev.cmd_copy_buffer(cmd, src.raw(), self.checks.raw(), &region) };
@@ -146,14 +181,15 @@ impl Renderer {
         copy(&self.stats, 0, stats_bytes);
         copy(sort.state_buffer(), stats_bytes, state_bytes);
         copy(scan.state_buffer(), stats_bytes + state_bytes, state_bytes);
-        if let Some(g) = gate {
+        if let Some(g) = &gate {
             self.k.frame_ok.dispatch(
                 cmd,
                 &FrameOkPush {
                     stats: self.stats.address(),
                     sort_state: sort.state_buffer().address(),
                     scan_state: scan.state_buffer().address(),
-                    ok: g.address(),
+                    ok: g.go.address() + g.offset,
+                    after: g.after.map_or(0, |(b, off)| b.address() + off),
                 },
                 [1, 1, 1],
             );
@@ -166,7 +202,7 @@ impl Renderer {
         if gate.is_some() {
             recorder::conditional_barrier(ctx, cmd);
         }
-        Ok(())
+        Ok(FrameCheck { slot, seq, plan })
     }
 
     /// What work recorded after the last frame in the same command buffer may assume
@@ -191,16 +227,23 @@ impl Renderer {
         })
     }
 
-    /// The stats of the last frame recorded with [`Renderer::record_checks`], read from
-    /// host-visible memory (no submission; the command buffer must have completed). A
-    /// failed look-back in the frame's scan or sort is an error.
-    pub fn checked_stats(&self) -> Result<FrameStats> {
-        let plan = self.last_plan()?;
+    /// The stats of a frame recorded with [`Renderer::record_checks`], read from
+    /// host-visible memory (no submission; its command buffer must have completed). A
+    /// failed look-back in the frame's scan or sort is an error, and so is a check whose
+    /// slot newer frames reused.
+    pub fn checked_stats(&self, check: &FrameCheck) -> Result<FrameStats> {
+        if self.check_seq - check.seq >= CHECK_SLOTS as u64 {
+            return Err(Error::Invalid(format!(
+                "the checks of frame {} were overwritten by frame {} (only the last {} are kept)",
+                check.seq, self.check_seq, CHECK_SLOTS
+            )));
+        }
         let bytes = self
             .checks
             .mapped()
             .ok_or_else(|| Error::Gpu("raster.checks is not host-visible".into()))?;
-        let words: &[u32] = bytemuck::cast_slice(&bytes[..CHECK_WORDS * 4]);
+        let base = check.slot * CHECK_WORDS * 4;
+        let words: &[u32] = bytemuck::cast_slice(&bytes[base..base + CHECK_WORDS * 4]);
         let err = crate::sort::ST_ERRORS;
         let sort_errs = words[STATS_WORDS + err];
         let scan_errs = words[STATS_WORDS + CHECK_STATE_WORDS + err];
@@ -209,7 +252,7 @@ impl Renderer {
                 "decoupled look-back failed in the frame's scan or sort".into(),
             ));
         }
-        Ok(FrameStats::from_words(&words[..STATS_WORDS], &plan))
+        Ok(FrameStats::from_words(&words[..STATS_WORDS], &check.plan))
     }
 
     /// Grows whatever the last frame found short (entries, chunks). Returns whether
@@ -236,28 +279,37 @@ impl Renderer {
     /// Reads the image of the last completed frame.
     pub fn read_image(&self) -> Result<Image> {
         let plan = self.last_plan()?;
-        let (buf, w, h) = if plan.supersampled {
-            (self.out_img.get(), plan.out_w, plan.out_h)
+        let (w, h) = plan.output_size();
+        let buf = if plan.supersampled {
+            self.out_img.get()
         } else {
-            (self.img.get(), plan.render_w, plan.render_h)
+            self.img.get()
         };
         let np = (w * h) as usize;
         let raw: Vec<f32> = self.ctx.download(buf, 0, np * CHANNELS)?;
-        let ch = |c: u32| &raw[c as usize * np..(c as usize + 1) * np];
-        let (r, g, b) = (ch(glsl::CH_R), ch(glsl::CH_G), ch(glsl::CH_B));
-        let (nx, ny, nz) = (ch(glsl::CH_NX), ch(glsl::CH_NY), ch(glsl::CH_NZ));
-        Ok(Image {
-            width: w,
-            height: h,
-            rgb: (0..np).map(|i| [r[i], g[i], b[i]]).collect(),
-            // finalize turns CH_T (transmittance) into alpha = 1 - T.
-            alpha: ch(glsl::CH_T).to_vec(),
-            depth: ch(glsl::CH_DEPTH).to_vec(),
-            depth_median: ch(glsl::CH_DMED).to_vec(),
-            normal: (0..np).map(|i| [nx[i], ny[i], nz[i]]).collect(),
-        })
+        Ok(image_from_channels(&raw, w, h))
     }
+}
 
+/// An [`Image`] of `w`×`h` from the frame's output channels (`CHANNELS` planes).
+pub(super) fn image_from_channels(raw: &[f32], w: u32, h: u32) -> Image {
+    let np = (w * h) as usize;
+    let ch = |c: u32| &raw[c as usize * np..(c as usize + 1) * np];
+    let (r, g, b) = (ch(glsl::CH_R), ch(glsl::CH_G), ch(glsl::CH_B));
+    let (nx, ny, nz) = (ch(glsl::CH_NX), ch(glsl::CH_NY), ch(glsl::CH_NZ));
+    Image {
+        width: w,
+        height: h,
+        rgb: (0..np).map(|i| [r[i], g[i], b[i]]).collect(),
+        // finalize turns CH_T (transmittance) into alpha = 1 - T.
+        alpha: ch(glsl::CH_T).to_vec(),
+        depth: ch(glsl::CH_DEPTH).to_vec(),
+        depth_median: ch(glsl::CH_DMED).to_vec(),
+        normal: (0..np).map(|i| [nx[i], ny[i], nz[i]]).collect(),
+    }
+}
+
+impl Renderer {
     /// The sorted entry values (`sign << 29 | voxel`) of every tile of the last completed
     /// frame, in compositing order (for tests and debugging; reads back everything).
     pub fn tile_lists(&self) -> Result<Vec<Vec<u32>>> {

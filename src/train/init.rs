@@ -280,10 +280,14 @@ impl Trainer {
             budget,
             budget_source,
             budget_logged: false,
-            go: ctx.zeroed_buffer("train.go", 4)?,
+            go: ctx.zeroed_buffer("train.go", 4 * super::trainer::GO_WORDS)?,
             last_stats: None,
             single: ctx.info().conditional_rendering,
             redone: 0,
+            pipelined: true,
+            queued: None,
+            go_seq: 0,
+            counting: false,
         })
     }
 

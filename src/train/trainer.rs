@@ -30,8 +30,8 @@ use crate::adapt::topology::Topology;
 use crate::camera::Camera;
 use ash::vk;
 
-use crate::gpu::{recorder, Context, Timestamps};
-use crate::raster::{FrameOutputs, FrameStats, RenderOptions, Renderer};
+use crate::gpu::{recorder, Context, Ticket, Timestamps};
+use crate::raster::{FrameCheck, FrameOutputs, FrameStats, Gate, RenderOptions, Renderer};
 use crate::scene::{Scene, SceneGpu};
 use crate::{Error, Result};
 
@@ -69,7 +69,10 @@ pub struct StepInfo {
     pub view: usize,
     pub sh_degree: u32,
     pub supersample: f32,
-    pub entries: u64,
+    /// Entries of this iteration's frame when the step waited for it (logged
+    /// iterations, adaptive steps, timing or counters on); `None` while it is still
+    /// queued (see [`Trainer::step`]).
+    pub entries: Option<u64>,
     /// Loss values when this iteration was asked to measure them.
     pub losses: Option<StepLosses>,
     /// What the adaptive step after this iteration did, if one was scheduled.
@@ -78,6 +81,7 @@ pub struct StepInfo {
 
 /// The loss weights and learning-rate scale of one iteration (the schedule's switches
 /// applied).
+#[derive(Clone, Copy)]
 struct IterWeights {
     dist: f32,
     nmed: f32,
@@ -85,6 +89,31 @@ struct IterWeights {
     tv: f32,
     lr_scale: f32,
 }
+
+/// One iteration's draws and switches: what recording it (again) needs.
+#[derive(Clone)]
+struct IterPlan {
+    /// Adam step number (the 1-based iteration).
+    step: u32,
+    view: usize,
+    ss: f32,
+    degree: u32,
+    opts: RenderOptions,
+    outputs: FrameOutputs,
+    w: IterWeights,
+}
+
+/// An iteration submitted and not yet checked.
+pub(super) struct Queued {
+    plan: IterPlan,
+    ticket: Ticket,
+    check: FrameCheck,
+    /// Byte offset of its go word in `Trainer::go`.
+    go_offset: u64,
+}
+
+/// Go words in `Trainer::go`, used in turn.
+pub(super) const GO_WORDS: u64 = 2;
 
 /// Per-stage timestamps of the last iteration (ms), when enabled.
 pub type StageTimes = Vec<(String, f64)>;
@@ -130,6 +159,14 @@ pub struct Trainer {
     pub(super) single: bool,
     /// Iterations run again over an incomplete frame.
     pub(super) redone: u64,
+    /// Queue an iteration behind the next ([`Trainer::set_pipelined`]).
+    pub(super) pipelined: bool,
+    /// The iteration submitted and not yet checked.
+    pub(super) queued: Option<Queued>,
+    /// Go words handed out so far (picks the next one).
+    pub(super) go_seq: u64,
+    /// Work counters on (each iteration is then waited for).
+    pub(super) counting: bool,
 }
 
 impl Trainer {
@@ -167,15 +204,37 @@ impl Trainer {
         Ok(())
     }
 
+    /// Stops recording stage timestamps (iterations are queued again).
+    pub fn set_timing(&mut self, on: bool) -> Result<()> {
+        if on {
+            return self.enable_timing();
+        }
+        self.flush()?;
+        self.timing = None;
+        Ok(())
+    }
+
     /// Turns the work counters of the frame and backward walks on or off (benchmarks:
     /// the counting kernels are slower; see [`Renderer::set_counters`]).
     pub fn set_counters(&mut self, on: bool) -> Result<()> {
+        self.flush()?;
+        self.counting = on;
         self.renderer.set_counters(on)
     }
 
     /// Work counters of the last iteration (forward and backward), when on.
-    pub fn counters(&self) -> Result<Option<crate::raster::WorkCounters>> {
+    pub fn counters(&mut self) -> Result<Option<crate::raster::WorkCounters>> {
+        self.flush()?;
         self.renderer.counters()
+    }
+
+    /// Whether [`Trainer::step`] leaves its iteration queued behind the next (the
+    /// default where an iteration is one submission) or waits for each one (tests
+    /// compare the two).
+    pub fn set_pipelined(&mut self, on: bool) -> Result<()> {
+        self.flush()?;
+        self.pipelined = on;
+        Ok(())
     }
 
     /// Whether an iteration is one submission (the default where the device has
@@ -189,6 +248,7 @@ impl Trainer {
                     .into(),
             ));
         }
+        self.flush()?;
         self.single = on;
         Ok(())
     }
@@ -206,7 +266,8 @@ impl Trainer {
         self.redone
     }
 
-    /// The stats of the last iteration's (complete) frame.
+    /// The stats of the last complete frame the host checked: this iteration's after a
+    /// [`Trainer::flush`], else the one before it while this one is queued.
     pub fn frame_stats(&self) -> Option<FrameStats> {
         self.last_stats
     }
@@ -248,29 +309,13 @@ impl Trainer {
         }
     }
 
-    /// Runs one iteration; with `measure`, reads back the loss values.
-    ///
-    /// Where the device has conditional rendering, the iteration is one submission and
-    /// one fence wait: the frame, its checks (stats and error words copied to
-    /// host-visible memory, a go word written on the GPU) and, in a region that runs
-    /// only if the frame came out complete, losses, backward, TV and Adam. An
-    /// incomplete frame (entries or tile lists beyond what was recorded) skips the
-    /// update on the GPU; the host grows the buffers and runs the same iteration again,
-    /// so the result is the same as rendering first and checking. Without conditional
-    /// rendering (a host's device that did not enable it) the frame is its own
-    /// submission. Logged iterations read their losses with further waits.
-    pub fn step(&mut self, measure: bool) -> Result<StepInfo> {
+    /// The draws and switches of iteration `self.iter` (0-based): the view, the
+    /// supersampling factor, the SH degree, the loss weights.
+    fn plan_iteration(&mut self) -> IterPlan {
         let it = self.iter;
         let view = self.next_view();
         let ss = self.draw_ss(it);
-        let cfg = self.cfg.clone();
-        let degree = self.schedule.sh_degree(it).min(cfg.sh_degree);
-        self.scene.sh_degree = degree;
-        let cam = self.cams[view].clone();
-        let opts = RenderOptions {
-            samples: cfg.samples,
-            supersample: ss,
-        };
+        let cfg = &self.cfg;
         let after = |from: u32, value: f32| if it >= from { value } else { 0.0 };
         let w = IterWeights {
             dist: after(self.schedule.dist_from, cfg.lambda_dist),
@@ -287,58 +332,246 @@ impl Trainer {
                 1.0
             },
         };
-        // The frame accumulates only what this iteration's losses read.
-        self.renderer.set_outputs(FrameOutputs {
-            normals: w.nmed > 0.0 || w.nmean > 0.0,
-            distortion: w.dist != 0.0,
-        });
-        let mut timing = self.timing.take();
-        let res = self.run_iteration(view, &cam, &opts, &w, it + 1, &mut timing);
-        if let (Some(t), Ok(_)) = (timing.as_ref(), res.as_ref()) {
-            let mut all = t.0.stages()?;
-            all.extend(t.1.stages()?);
-            self.last_times = all;
+        IterPlan {
+            step: it + 1,
+            view,
+            ss,
+            degree: self.schedule.sh_degree(it).min(cfg.sh_degree),
+            opts: RenderOptions {
+                samples: cfg.samples,
+                supersample: ss,
+            },
+            // The frame accumulates only what this iteration's losses read.
+            outputs: FrameOutputs {
+                normals: w.nmed > 0.0 || w.nmean > 0.0,
+                distortion: w.dist != 0.0,
+            },
+            w,
         }
-        self.timing = timing;
-        let stats = res?;
+    }
+
+    /// Runs one iteration; with `measure`, reads back the loss values.
+    ///
+    /// Where the device has conditional rendering, an iteration is one submission and
+    /// the host does not wait for it: the frame, its checks (stats and error words
+    /// copied to host-visible memory, a go word written on the GPU) and, in a region
+    /// that runs only if the frame came out complete, losses, backward, TV and Adam.
+    /// The iteration stays queued while the next one is recorded and submitted behind
+    /// it; only then does the host wait for it (the device is busy with the next one)
+    /// and read its checks. An incomplete frame skips its update on the GPU, and its go
+    /// word skips the update queued behind it too; the host then grows the buffers and
+    /// runs both again, in order, so the result is the same as checking each frame
+    /// before its update. Logged iterations, adaptive steps and anything that reads the
+    /// model ([`Trainer::flush`]) wait for the queue to drain. Without conditional
+    /// rendering (a host's device that did not enable it) the frame is its own
+    /// submission; with stage timing or work counters on, each iteration is waited for.
+    pub fn step(&mut self, measure: bool) -> Result<StepInfo> {
+        let plan = self.plan_iteration();
+        let queue = self.single && self.pipelined && self.timing.is_none() && !self.counting;
+        let mut own = None;
+        if queue {
+            let after = self.queued.as_ref().map(|q| q.go_offset);
+            let q = self.submit_iteration(&plan, after)?;
+            if let Some(prev) = self.queued.replace(q) {
+                self.settle(prev)?;
+            }
+        } else {
+            self.flush()?;
+            let stats = self.run_now(&plan)?;
+            self.check_lost()?;
+            self.last_stats = Some(stats);
+            own = Some(stats);
+        }
+        self.iter += 1;
+        let adapt = self
+            .schedule
+            .adapt
+            .iter()
+            .find(|s| s.iter == self.iter)
+            .copied();
+        if own.is_none() && (measure || adapt.is_some()) {
+            own = self.flush()?;
+        }
+        let losses = if measure {
+            Some(self.read_losses(plan.w.dist, plan.w.tv, (plan.w.nmed, plan.w.nmean))?)
+        } else {
+            None
+        };
+        let adapt = match adapt {
+            Some(step) => Some(self.adapt(step)?),
+            None => None,
+        };
+        Ok(StepInfo {
+            iter: self.iter,
+            view: plan.view,
+            sh_degree: plan.degree,
+            supersample: plan.ss,
+            entries: own.map(|s| s.entries),
+            losses,
+            adapt,
+        })
+    }
+
+    /// Waits for the iteration still queued (if any) and settles it: its frame
+    /// checked, its update redone if the frame came out incomplete. Returns that
+    /// frame's stats. Everything that reads the model or optimiser state calls this
+    /// first.
+    pub fn flush(&mut self) -> Result<Option<FrameStats>> {
+        let Some(q) = self.queued.take() else {
+            return Ok(None);
+        };
+        self.ctx.wait(q.ticket)?;
+        self.check_lost()?;
+        let mut stats = self.renderer.checked_stats(&q.check)?;
+        if !stats.complete() {
+            self.redone += 1;
+            if !self.renderer.grow_for(&stats)? {
+                return Err(Error::Gpu(format!(
+                    "frame incomplete but nothing to grow: {stats:?}"
+                )));
+            }
+            stats = self.run_now(&q.plan)?;
+            self.check_lost()?;
+        }
         self.last_stats = Some(stats);
+        Ok(Some(stats))
+    }
+
+    /// Waits for iteration `prev` while the one queued behind it runs, and checks its
+    /// frame. If it came out incomplete, both updates were skipped on the GPU: the
+    /// buffers grow, `prev` runs again (waited for) and the queued one is submitted
+    /// again behind it.
+    fn settle(&mut self, prev: Queued) -> Result<()> {
+        self.ctx.wait(prev.ticket)?;
+        self.check_lost()?;
+        let stats = self.renderer.checked_stats(&prev.check)?;
+        if stats.complete() {
+            self.last_stats = Some(stats);
+            return Ok(());
+        }
+        let cur = self
+            .queued
+            .take()
+            .ok_or_else(|| Error::Gpu("no iteration queued behind a skipped one".into()))?;
+        self.ctx.wait(cur.ticket)?;
+        // Measured on parameters one update stale: a capacity hint, grown for as well.
+        let cur_stats = self.renderer.checked_stats(&cur.check)?;
+        self.redone += 2;
+        if !self.renderer.grow_for(&stats)? {
+            return Err(Error::Gpu(format!(
+                "frame incomplete but nothing to grow: {stats:?}"
+            )));
+        }
+        if !cur_stats.complete() {
+            self.renderer.grow_for(&cur_stats)?;
+        }
+        let stats = self.run_now(&prev.plan)?;
+        self.check_lost()?;
+        self.last_stats = Some(stats);
+        let q = self.submit_iteration(&cur.plan, None)?;
+        self.queued = Some(q);
+        Ok(())
+    }
+
+    /// Errors if a compare-and-swap float add gave up since the run began (the
+    /// counters are cumulative, so reading them an iteration late misses nothing).
+    fn check_lost(&self) -> Result<()> {
         if self.backward.read_lost()? != 0 || self.tv.read_lost()? != 0 {
             return Err(Error::Gpu(
                 "compare-and-swap float adds gave up under contention: gradients are incomplete"
                     .into(),
             ));
         }
-        self.iter += 1;
-        let losses = if measure {
-            Some(self.read_losses(w.dist, w.tv, (w.nmed, w.nmean))?)
-        } else {
-            None
-        };
-        let adapt = match self.schedule.adapt.iter().find(|s| s.iter == self.iter) {
-            Some(&step) => Some(self.adapt(step)?),
-            None => None,
-        };
-        Ok(StepInfo {
-            iter: self.iter,
-            view,
-            sh_degree: degree,
-            supersample: ss,
-            entries: stats.entries,
-            losses,
-            adapt,
+        Ok(())
+    }
+
+    /// Sets the host-side state iteration `plan` records with.
+    fn apply(&mut self, plan: &IterPlan) {
+        self.scene.sh_degree = plan.degree;
+        self.renderer.set_outputs(plan.outputs);
+    }
+
+    /// Records and submits iteration `plan` (frame, checks, its update in the frame's
+    /// conditional region) without waiting; `after`: the go word of the iteration
+    /// queued before it, whose skip this one follows.
+    fn submit_iteration(&mut self, plan: &IterPlan, after: Option<u64>) -> Result<Queued> {
+        self.apply(plan);
+        let cam = self.cams[plan.view].clone();
+        self.renderer.prepare(&self.scene, &cam, &plan.opts)?;
+        let go_offset = self.next_go();
+        let ctx = self.ctx.clone();
+        let (check, ticket) =
+            ctx.submit(|cmd| self.record_gated(cmd, plan, &cam, go_offset, after, &mut None))?;
+        Ok(Queued {
+            plan: plan.clone(),
+            ticket,
+            check,
+            go_offset,
         })
     }
 
-    /// Renders view `view` and takes its training step (Adam step number `step`),
-    /// growing the frame buffers and repeating until the frame is complete; returns the
-    /// complete frame's stats.
-    fn run_iteration(
+    /// The byte offset of the next go word (they alternate, so a queued iteration's
+    /// word outlives the recording of the next).
+    fn next_go(&mut self) -> u64 {
+        self.go_seq += 1;
+        4 * (self.go_seq % GO_WORDS)
+    }
+
+    /// Records iteration `plan`'s frame, checks, and update in the frame's conditional
+    /// region (go word at `go_offset`, chained after the word at `after`).
+    fn record_gated(
         &mut self,
-        view: usize,
+        cmd: vk::CommandBuffer,
+        plan: &IterPlan,
         cam: &Camera,
-        opts: &RenderOptions,
-        w: &IterWeights,
-        step: u32,
+        go_offset: u64,
+        after: Option<u64>,
+        timing: &mut Option<(Timestamps, Timestamps)>,
+    ) -> Result<FrameCheck> {
+        let ctx = self.ctx.clone();
+        self.renderer.record(
+            cmd,
+            &self.scene,
+            cam,
+            &plan.opts,
+            timing.as_mut().map(|t| &mut t.0),
+        )?;
+        let check = self.renderer.record_checks(
+            cmd,
+            Some(Gate {
+                go: &self.go,
+                offset: go_offset,
+                after: after.map(|o| (&self.go, o)),
+            }),
+        )?;
+        let planned = self.renderer.planned_stats()?;
+        recorder::begin_conditional(&ctx, cmd, &self.go, go_offset)?;
+        self.record_update(cmd, plan.view, cam, &planned, &plan.w, plan.step, timing)?;
+        recorder::end_conditional(&ctx, cmd)?;
+        Ok(check)
+    }
+
+    /// Renders view `plan.view` and takes its training step, waiting for it, growing
+    /// the frame buffers and repeating until the frame is complete; returns the
+    /// complete frame's stats (and, with timing on, its stage times).
+    fn run_now(&mut self, plan: &IterPlan) -> Result<FrameStats> {
+        self.apply(plan);
+        let cam = self.cams[plan.view].clone();
+        let mut timing = self.timing.take();
+        let res = self.run_now_timed(plan, &cam, &mut timing);
+        if let (Some(t), Ok(_)) = (timing.as_ref(), res.as_ref()) {
+            let mut all = t.0.stages()?;
+            all.extend(t.1.stages()?);
+            self.last_times = all;
+        }
+        self.timing = timing;
+        res
+    }
+
+    fn run_now_timed(
+        &mut self,
+        plan: &IterPlan,
+        cam: &Camera,
         timing: &mut Option<(Timestamps, Timestamps)>,
     ) -> Result<FrameStats> {
         let ctx = self.ctx.clone();
@@ -347,34 +580,22 @@ impl Trainer {
             let stats = self.renderer.render_to_device(
                 &self.scene,
                 cam,
-                opts,
+                &plan.opts,
                 timing.as_mut().map(|t| &mut t.0),
             )?;
             ctx.submit_and_wait(|cmd| {
-                self.record_update(cmd, view, cam, &stats, w, step, timing)?;
-                Ok(())
+                self.record_update(cmd, plan.view, cam, &stats, &plan.w, plan.step, timing)
             })?;
             self.redone += self.renderer.frames_grown() - redone;
             return Ok(stats);
         }
         for _attempt in 0..8 {
-            self.renderer.prepare(&self.scene, cam, opts)?;
-            ctx.submit_and_wait(|cmd| {
-                self.renderer.record(
-                    cmd,
-                    &self.scene,
-                    cam,
-                    opts,
-                    timing.as_mut().map(|t| &mut t.0),
-                )?;
-                self.renderer.record_checks(cmd, Some(&self.go))?;
-                let planned = self.renderer.planned_stats()?;
-                recorder::begin_conditional(&ctx, cmd, &self.go, 0)?;
-                self.record_update(cmd, view, cam, &planned, w, step, timing)?;
-                recorder::end_conditional(&ctx, cmd)?;
-                Ok(())
+            self.renderer.prepare(&self.scene, cam, &plan.opts)?;
+            let go_offset = self.next_go();
+            let check = ctx.submit_and_wait(|cmd| {
+                self.record_gated(cmd, plan, cam, go_offset, None, timing)
             })?;
-            let stats = self.renderer.checked_stats()?;
+            let stats = self.renderer.checked_stats(&check)?;
             if stats.complete() {
                 return Ok(stats);
             }
@@ -618,7 +839,8 @@ impl Trainer {
     }
 
     /// Whether a non-finite gradient or parameter appeared since the last check.
-    pub fn check_finite(&self) -> Result<()> {
+    pub fn check_finite(&mut self) -> Result<()> {
+        self.flush()?;
         if self.adam.read_nonfinite()? {
             return Err(Error::Invalid(format!(
                 "a NaN or infinite value appeared in the gradients or parameters by \
@@ -632,12 +854,14 @@ impl Trainer {
 
     /// The current model (downloads the parameters).
     pub fn scene(&mut self) -> Result<Scene> {
+        self.flush()?;
         self.scene.download_params(&self.ctx, &mut self.host)?;
         Ok(self.host.clone())
     }
 
     /// Adam moments and iteration, for resuming: (geo m, geo v, sh0 m, sh0 v, shs m, shs v).
-    pub fn optimizer_state(&self) -> Result<Vec<Vec<f32>>> {
+    pub fn optimizer_state(&mut self) -> Result<Vec<Vec<f32>>> {
+        self.flush()?;
         let counts = self.group_counts();
         let (n, w) = (
             self.scene.voxels as usize,
@@ -661,6 +885,7 @@ impl Trainer {
 
     /// Restores Adam moments saved by [`Trainer::optimizer_state`].
     pub fn set_optimizer_state(&mut self, state: &[Vec<f32>]) -> Result<()> {
+        self.flush()?;
         let counts = self.group_counts();
         if state.len() != 6 || (0..6).any(|i| state[i].len() != counts[i / 2]) {
             return Err(Error::Invalid(
