@@ -301,12 +301,14 @@ const F16_OFFSET: u64 = 256;
 /// GENERAL) and 16F buffer at an offset, all cut at the host's depth, the last one also
 /// writing the median depth; then an f32 buffer with rays not cut, writing the mean
 /// depth — and read-backs.
-fn host_frame(host: &Host, scene: &Scene, cam: &Camera, reverse: bool) -> Frame {
+/// `segments`: entries per segment of the field's composite (0: off).
+fn host_frame(host: &Host, scene: &Scene, cam: &Camera, reverse: bool, segments: u32) -> Frame {
     let ctx = host.context();
     let gpu = SceneGpu::upload(&ctx, scene).unwrap();
     let hv = host_view(cam, if reverse { None } else { Some(100.0) }, reverse);
     let (rcam, conv) = hv.camera().unwrap();
     let mut hr = HostRenderer::new(&ctx, 5).unwrap();
+    hr.set_segment_entries(segments);
     let npix = (W * H) as u64;
     let tri = triangle(scene, &rcam);
     let verts = host.buffer(tri.len() as u64 * 4, vk::BufferUsageFlags::STORAGE_BUFFER);
@@ -470,6 +472,11 @@ fn host_frame(host: &Host, scene: &Scene, cam: &Camera, reverse: bool) -> Frame 
     for i in 0..5 {
         let s = hr.finished(i).expect("recorded");
         assert!(s.complete(), "frame {i}: {s:?}");
+        assert!(
+            segments == 0 || s.max_tile_entries > 3 * segments,
+            "frame {i}: the longest list ({}) must span several segments of {segments}",
+            s.max_tile_entries
+        );
     }
     let rgba = |b: &HostBuffer| -> Vec<[f32; 4]> {
         b.read::<f32>()
@@ -527,8 +534,9 @@ fn host_depth_cuts_rays_and_targets_agree() {
     let mut bg_free = scene.clone();
     bg_free.background = [0.0; 3];
     let mut frames = vec![];
-    for reverse in [false, true] {
-        let f = host_frame(&host, &scene, &cam, reverse);
+    // Standard and reverse Z; and the field composited in segments of 5 entries.
+    for (reverse, segments) in [(false, 0), (true, 0), (false, 5)] {
+        let f = host_frame(&host, &scene, &cam, reverse, segments);
         let refs = references(&bg_free, &f.cam, &f.conv, &f.host_z);
         let uncut: Vec<RefPixel> = (0..H)
             .flat_map(|py| (0..W).map(move |px| (px, py)))
@@ -671,6 +679,15 @@ fn host_depth_cuts_rays_and_targets_agree() {
         (diff as f64) <= RGB_TOL,
         "standard vs reverse-Z differ by {diff}"
     );
+    // Segmented: the unsegmented image up to rounding.
+    let mut diff = 0f32;
+    for (a, b) in frames[0].f32_rgba.iter().zip(&frames[2].f32_rgba) {
+        for c in 0..4 {
+            diff = diff.max((a[c] - b[c]).abs());
+        }
+    }
+    println!("segments of 5 vs none: max difference {diff:.2e}");
+    assert!(diff <= 1e-5, "segmented host frame differs by {diff}");
     drop(host);
     assert_host_clean();
 }

@@ -6,7 +6,9 @@
 
 mod common;
 
-use common::forward::{assert_within, compare, pixel, render, Errors};
+use common::forward::{
+    assert_within, compare, pixel, render, Errors, DEPTH_TOL, NORMAL_TOL, RGB_TOL,
+};
 use common::reference::{self, RefPixel};
 use common::{camera_inside, camera_outside, context, finish, random_scene, scattered_scene, Rng};
 use svraster::data::Camera;
@@ -46,6 +48,143 @@ fn matches_reference_on_random_multilevel_scenes() {
         }
     }
     println!("all random scenes: {total:?}");
+    finish(&ctx);
+}
+
+/// Segmented compositing (a tile's list cut into segments walked by separate
+/// workgroups, merged in depth order; "Segments" in raster_params.glsl) renders what
+/// the sequential walk renders up to rounding, and what the f64 reference renders as
+/// closely, from one-entry segments (every contributor alone) up, with K = 1..3.
+#[test]
+#[allow(clippy::needless_range_loop)]
+fn segmented_frames_match_the_reference() {
+    let ctx = context();
+    let mut off = Renderer::new(&ctx).unwrap();
+    off.set_segment_entries(0);
+    let mut worst_diff = 0.0f64;
+    let mut total = Errors::default();
+    for (i, seg) in [1u32, 2, 5, 16].into_iter().enumerate() {
+        let mut r = Renderer::new(&ctx).unwrap();
+        r.set_segment_entries(seg);
+        assert_eq!(r.segment_entries(), seg);
+        // Frames whose longest list spans more than two segments.
+        let mut spanning = 0;
+        for seed in 0..3u64 {
+            let mut rng = Rng(3000 + 10 * i as u64 + seed);
+            let max_level = [3, 6, 10][seed as usize];
+            let scene = random_scene(&mut rng, max_level, (seed % 4) as u32);
+            let k = 1 + ((seed + i as u64) % 3) as u32;
+            for (ci, cam) in [
+                camera_outside(&mut rng, &scene, 45, 31),
+                camera_inside(&mut rng, &scene, 38, 29),
+            ]
+            .iter()
+            .enumerate()
+            {
+                let what = format!("segments of {seg}, seed {seed}, K {k}, camera {ci}");
+                let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+                let opts = RenderOptions {
+                    samples: k,
+                    supersample: 1.0,
+                };
+                let (img, st) = r.render(&gpu, cam, &opts).unwrap();
+                assert!(st.complete(), "{what}: {st:?}");
+                spanning += usize::from(st.max_tile_entries > 2 * seg);
+                let (seq, _) = off.render(&gpu, cam, &opts).unwrap();
+                let refs = reference::render(&scene, cam, k as usize);
+                // Against the sequential walk: rounding only (sums regrouped by
+                // segment), except where the reference decides the median within
+                // 1e-3 of T = 0.5.
+                for p in 0..refs.len() {
+                    let mut d = (img.alpha[p] - seq.alpha[p]).abs();
+                    for c in 0..3 {
+                        d = d.max((img.rgb[p][c] - seq.rgb[p][c]).abs());
+                        d = d.max((img.normal[p][c] - seq.normal[p][c]).abs());
+                    }
+                    d = d.max((img.depth[p] - seq.depth[p]).abs() / (1.0 + seq.depth[p].abs()));
+                    if !refs[p].median_ambiguous {
+                        let m = seq.depth_median[p];
+                        d = d.max((img.depth_median[p] - m).abs() / (1.0 + m.abs()));
+                    }
+                    assert!(
+                        d <= 1e-5,
+                        "{what}: pixel {p} differs from the sequential walk by {d}"
+                    );
+                    worst_diff = worst_diff.max(d as f64);
+                }
+                // Against the reference: within the stated bounds, or no further
+                // from it than the sequential walk is.
+                let e = compare(&img, &refs, &what);
+                let e_seq = compare(&seq, &refs, &what);
+                let slack = |on: f64, seq: f64, tol: f64| on <= tol.max(seq + 1e-5);
+                assert!(
+                    slack(e.rgb, e_seq.rgb, RGB_TOL),
+                    "{what}: {e:?} vs {e_seq:?}"
+                );
+                assert!(
+                    slack(e.alpha, e_seq.alpha, RGB_TOL),
+                    "{what}: {e:?} vs {e_seq:?}"
+                );
+                assert!(
+                    slack(e.depth, e_seq.depth, DEPTH_TOL),
+                    "{what}: {e:?} vs {e_seq:?}"
+                );
+                assert!(
+                    slack(e.median, e_seq.median, DEPTH_TOL),
+                    "{what}: {e:?} vs {e_seq:?}"
+                );
+                assert!(
+                    slack(e.normal, e_seq.normal, NORMAL_TOL),
+                    "{what}: {e:?} vs {e_seq:?}"
+                );
+                total = total.max(e);
+            }
+        }
+        assert!(
+            spanning >= 3,
+            "segments of {seg}: only {spanning} frames span several"
+        );
+    }
+    println!("segmented frames: largest difference from the sequential walk {worst_diff:.2e}; against the reference {total:?}");
+    finish(&ctx);
+}
+
+/// A tile whose list fits one segment composites exactly as without segments: with
+/// segments longer than any list, every channel of the image is the same bits.
+#[test]
+fn one_segment_per_tile_is_the_unsegmented_frame() {
+    let ctx = context();
+    let mut off = Renderer::new(&ctx).unwrap();
+    off.set_segment_entries(0);
+    let mut on = Renderer::new(&ctx).unwrap();
+    on.set_segment_entries(1 << 20);
+    for r in [&mut off, &mut on] {
+        r.set_outputs(FrameOutputs {
+            normals: true,
+            distortion: true,
+        });
+    }
+    let bits = |im: &Image| -> Vec<u32> {
+        let f = im.rgb.iter().chain(im.normal.iter()).flatten();
+        let g = im.alpha.iter().chain(&im.depth).chain(&im.depth_median);
+        f.chain(g).map(|x| x.to_bits()).collect()
+    };
+    for seed in 0..3u64 {
+        let mut rng = Rng(3100 + seed);
+        let scene = random_scene(&mut rng, [3, 6, 10][seed as usize], 2);
+        let cam = camera_outside(&mut rng, &scene, 45, 31);
+        let k = 1 + seed as u32;
+        let a = render(&mut off, &ctx, &scene, &cam, k);
+        let b = render(&mut on, &ctx, &scene, &cam, k);
+        assert!(
+            a.alpha.iter().any(|&x| x > 0.0),
+            "seed {seed}: nothing rendered"
+        );
+        assert!(
+            bits(&a) == bits(&b),
+            "seed {seed}: one segment per tile differs"
+        );
+    }
     finish(&ctx);
 }
 

@@ -2,7 +2,8 @@
 # Training-iteration benchmark: `svraster bench train` on NeRF-synthetic lego
 # (../shared/data/lego_400, or DATA=...) with the quick preset (level-6 grid, 262 144
 # voxels) at downscale 4 (100²) and 2 (200²). Appends one JSON line per configuration
-# to bench_train.jsonl and prints a table of the per-stage medians.
+# to bench_train.jsonl and prints a table of the per-stage medians. SEGMENTS=N sets the
+# entries per segment of the frame and backward walks (0: off; default: the device's).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 DATA=${DATA:-../shared/data/lego_400}
@@ -16,7 +17,8 @@ cargo build --release --quiet
 : > bench_train.jsonl
 for ds in 4 2; do
   target/release/svraster bench train "$DATA" --downscale "$ds" --preset quick \
-    --set grid_level="$LEVEL" --iters "$ITERS" --warmup 1 --json | tee -a bench_train.jsonl
+    --set grid_level="$LEVEL" --iters "$ITERS" --warmup 1 ${SEGMENTS:+--segments "$SEGMENTS"} \
+    --json | tee -a bench_train.jsonl
 done
 python3 - <<'PY'
 import json

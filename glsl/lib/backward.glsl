@@ -21,7 +21,10 @@
 // atomic instruction across the subgroup (a CAS loop where the device lacks them)
 // instead of 15 reductions and 15 single-lane atomics. Chunks of the list are separate
 // dispatches (last chunk first), carrying per-pixel state (T, A, Σ_after w, Σ_after w·m)
-// in `bstate`, which keeps each invocation under llvmpipe's loop limit.
+// in `bstate`, which keeps each invocation under llvmpipe's loop limit. A segmented
+// frame ("Segments" in raster_params.glsl) is walked per segment instead, every
+// segment by its own workgroup in one dispatch, from that same state at its back
+// (computed in closed form by train/seg_bmerge.comp).
 //
 // DETERMINISTIC (the ordered reduction, `--deterministic`): no float atomics. Each sorted
 // entry (one tile, one voxel, one sign octant) owns a VG_STRIDE record in B.records at
@@ -45,7 +48,7 @@ layout(push_constant) uniform Push {
     FrameParams P;
     BackParams B;
     uint chunk;  // chunk index (dispatched from the last down to 0)
-    uint pad;
+    uint mode;   // SEG_OFF (per tile, in chunks) or SEG_EXACT (per segment's slot)
 } pc;
 
 shared uint s_last;
@@ -107,10 +110,10 @@ void reduce_add(float r[16], uint base) {
 }
 
 #ifdef DETERMINISTIC
-// Record of the staged entry `e` of this workgroup's tile: its index in emit_keys.comp's
-// emission order (the sort keeps no index, but the emission is a pure function of the
-// voxel's rectangle and sign octants).
-uint record_index(Entry e) {
+// Record of the staged entry `e` of the tile at tile coordinates `tile_xy`: its index in
+// emit_keys.comp's emission order (the sort keeps no index, but the emission is a pure
+// function of the voxel's rectangle and sign octants).
+uint record_index(Entry e, uvec2 tile_xy) {
     FrameParams P = pc.P;
     uint v = e.val & 0x1fffffffu, sign = e.val >> 29u;
     uvec2 tlo = uvec2(e.box.x & 0xffffu, e.box.x >> 16u) / 16u;
@@ -118,7 +121,7 @@ uint record_index(Entry e) {
     uint tw = thi.x - tlo.x + 1u;
     uint ntiles = tw * (thi.y - tlo.y + 1u);
     uint si = bitCount(P.signs.v[v] & ((1u << sign) - 1u));
-    uvec2 t = gl_WorkGroupID.xy - tlo;
+    uvec2 t = tile_xy - tlo;
     return P.offsets.v[v] + si * ntiles + t.y * tw + t.x;
 }
 #endif
@@ -138,9 +141,11 @@ struct BPx {
     float T, A, wa, ma;
 };
 
-BPx bpx_init(FrameParams P, BackParams B, uvec2 lp) {
+// Pixel lp of the tile at `org`; `slot`: the segment walked (per-slot mode), which
+// starts from the state behind it (SEG_BT..SEG_BMA, train/seg_bmerge.comp).
+BPx bpx_init(FrameParams P, BackParams B, uvec2 lp, uvec2 org, uint slot) {
     BPx s;
-    s.pix = gl_WorkGroupID.xy * 16u + lp;
+    s.pix = org + lp;
     uint W = P.render_size.x, H = P.render_size.y;
     s.inside = s.pix.x < W && s.pix.y < H;
     uint npix = W * H;
@@ -170,7 +175,13 @@ BPx bpx_init(FrameParams P, BackParams B, uvec2 lp) {
         s.mtot = P.aux.v[AUX_M * npix + p];
         s.last = P.last.v[p];
         s.t_last = P.aux.v[AUX_TLAST * npix + p];
-        if (pc.chunk + 1u == B.chunks) {
+        if (pc.mode != SEG_OFF) {
+            uint q = lp.y * 16u + lp.x;
+            s.T = P.seg_state.v[seg_word(P, SEG_BT, slot, q)];
+            s.A = P.seg_state.v[seg_word(P, SEG_BA, slot, q)];
+            s.wa = P.seg_state.v[seg_word(P, SEG_BWA, slot, q)];
+            s.ma = P.seg_state.v[seg_word(P, SEG_BMA, slot, q)];
+        } else if (pc.chunk + 1u == B.chunks) {
             s.T = P.aux.v[AUX_T * npix + p];
             s.A = B.dimg.v[DI_T * npix + p];
         } else {
@@ -314,15 +325,28 @@ void main() {
     BackParams B = pc.B;
     uint l = gl_LocalInvocationID.x;
     uint tiles_x = P.tiles.x;
-    uint tile = gl_WorkGroupID.y * tiles_x + gl_WorkGroupID.x;
+    // The tile and the part of its list this workgroup walks: chunk `pc.chunk` of the
+    // tile of this workgroup, or the segment of this workgroup's slot (the forward's).
+    uint tile, slot = 0u, start, end;
+    if (pc.mode == SEG_OFF) {
+        tile = gl_WorkGroupID.y * tiles_x + gl_WorkGroupID.x;
+        uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
+        start = r0 + min(r1 - r0, pc.chunk * B.chunk_size);
+        end = min(r1, start + B.chunk_size);
+    } else {
+        // Uniform exits: no segment in this slot.
+        slot = linear_group_id();
+        if (slot >= P.slot_cap) return;
+        tile = P.seg_tile.v[slot];
+        if (tile == 0xffffffffu) return;
+        uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
+        start = r0 + (slot - seg_first_slot(P, tile, r0)) * P.seg_size;
+        end = min(r1, start + P.seg_size);
+    }
+    uvec2 org = uvec2(tile % tiles_x, tile / tiles_x) * 16u;
     uvec2 lp0 = walk_pixel(0u), lp1 = walk_pixel(1u);
-    BPx s0 = bpx_init(P, B, lp0);
-    BPx s1 = bpx_init(P, B, lp1);
-
-    uint chunk_size = B.chunk_size;
-    uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
-    uint start = r0 + min(r1 - r0, pc.chunk * chunk_size);
-    uint end = min(r1, start + chunk_size);
+    BPx s0 = bpx_init(P, B, lp0, org, slot);
+    BPx s1 = bpx_init(P, B, lp1, org, slot);
     // Nothing after the tile's last contributor matters.
     if (l == 0u) s_last = 0u;
     barrier();
@@ -337,7 +361,6 @@ void main() {
          c_build = 0u;
 #endif
     uint sg = gl_SubgroupID;
-    uvec2 org = gl_WorkGroupID.xy * 16u;
     walk_setup(l, lp0, lp1, s0.sign, s1.sign, s0.inside, s1.inside);
     uint sg_last = subgroupMax(max(s0.inside ? s0.last : 0u, s1.inside ? s1.last : 0u));
     // Subgroups with a contributor in this chunk.
@@ -392,7 +415,7 @@ void main() {
 #endif
                 // One voxel per entry: reduce over the subgroup, every lane adds a component.
 #ifdef DETERMINISTIC
-                reduce_add(red, VG_STRIDE * record_index(e));
+                reduce_add(red, VG_STRIDE * record_index(e, org / 16u));
 #else
                 reduce_add(red, VG_STRIDE * (e.val & 0x1fffffffu));
 #endif
@@ -410,6 +433,8 @@ void main() {
     flush_counters(ctr, CTR_BWD, c_trips, c_useful, c_dense, c_pairs, c_cross, c_contrib,
                    c_build);
 #endif
-    bpx_store(P, B, s0);
-    bpx_store(P, B, s1);
+    if (pc.mode == SEG_OFF) {
+        bpx_store(P, B, s0);
+        bpx_store(P, B, s1);
+    }
 }

@@ -3,11 +3,13 @@
 // folds per-voxel max blend weights (the adaptive statistics pass only); COUNTERS counts
 // the walk's work into P.counters (bench only).
 //
-// Each dispatch handles one chunk of at most CHUNK entries of every tile's sorted list
-// and carries the per-pixel state (C, T, D, N, median) in the image buffers, so no
-// invocation's loops exceed llvmpipe's 65 535-iteration limit however long a tile's
-// list is; the host records enough chunks (stats report the longest list and flag a
-// shortfall). Each invocation composites two pixels (tile_walk.glsl's walk_pixel).
+// Without segments (mode SEG_OFF) each dispatch handles one chunk of at most CHUNK
+// entries of every tile's sorted list and carries the per-pixel state (C, T, D, N,
+// median) in the image buffers, so no invocation's loops exceed llvmpipe's 65 535-
+// iteration limit however long a tile's list is; the host records enough chunks (stats
+// report the longest list and flag a shortfall). With segments (SEG_TRANSMIT, SEG_EXACT;
+// "Segments" in raster_params.glsl) each workgroup walks one segment of one tile, named
+// by its slot. Each invocation composites two pixels (tile_walk.glsl's walk_pixel).
 // Entries are staged through shared memory 128 at a time; each subgroup visits only the
 // staged entries whose pixel rectangle meets its block and whose sign octant one of its
 // live pixels has (tile_walk.glsl); a pixel then skips entries of another octant or
@@ -24,7 +26,7 @@ layout(local_size_x = 128) in;  // WALK_WG
 layout(push_constant) uniform Push {
     FrameParams P;
     uint chunk;
-    uint pad;
+    uint mode;  // SEG_OFF, SEG_TRANSMIT or SEG_EXACT
 } pc;
 
 shared uint s_live[2];  // per batch parity: subgroups with a pixel still compositing
@@ -46,11 +48,14 @@ struct Px {
     float t_last;  // transmittance in front of the last contributor
     uint last;
     bool done;
+    float Q;  // segments (SEG_EXACT): Σ w·|c|², for the backward's boundary state
 };
 
-Px px_init(FrameParams P, uvec2 lp) {
+// Pixel lp of the tile at `org`; `slot`: the segment's slot (SEG_EXACT starts from the
+// transmittance and Σ w·m in front of the segment).
+Px px_init(FrameParams P, uvec2 lp, uvec2 org, uint slot) {
     Px s;
-    s.pix = gl_WorkGroupID.xy * 16u + lp;
+    s.pix = org + lp;
     uint W = P.render_size.x, H = P.render_size.y;
     uint npix = W * H;
     s.inside = s.pix.x < W && s.pix.y < H;
@@ -72,6 +77,7 @@ Px px_init(FrameParams P, uvec2 lp) {
     s.dist_l = 0.0;
     s.t_last = 1.0;
     s.last = 0u;
+    s.Q = 0.0;
     uint p = s.p;
     if (pc.chunk > 0u && s.inside) {
         s.dist_m = P.aux.v[AUX_M * npix + p];
@@ -85,8 +91,40 @@ Px px_init(FrameParams P, uvec2 lp) {
         s.med_id = P.med_id.v[p];
         s.med_t = P.med_t.v[p];
     }
+    if (pc.mode == SEG_EXACT && s.inside) {
+        uint q = lp.y * 16u + lp.x;
+        s.T = P.seg_state.v[seg_word(P, SEG_T, slot, q)];
+        s.dist_m = P.seg_state.v[seg_word(P, SEG_M, slot, q)];
+    }
     s.done = !s.inside || s.T < EARLY_STOP_T;
     return s;
+}
+
+// A segment's results: its transmittance product and Σ w·m (SEG_TRANSMIT), or its
+// partial sums and decisions (SEG_EXACT), at pixel lp of slot `slot`.
+void px_store_segment(FrameParams P, Px s, uvec2 lp, uint slot) {
+    if (!s.inside) return;
+    uint q = lp.y * 16u + lp.x;
+    if (pc.mode == SEG_TRANSMIT) {
+        P.seg_state.v[seg_word(P, SEG_T, slot, q)] = s.T;
+        P.seg_state.v[seg_word(P, SEG_M, slot, q)] = s.dist_m;
+        return;
+    }
+    P.seg_state.v[seg_word(P, SEG_R, slot, q)] = s.C.x;
+    P.seg_state.v[seg_word(P, SEG_G, slot, q)] = s.C.y;
+    P.seg_state.v[seg_word(P, SEG_B, slot, q)] = s.C.z;
+    P.seg_state.v[seg_word(P, SEG_D, slot, q)] = s.D;
+    P.seg_state.v[seg_word(P, SEG_NX, slot, q)] = s.N.x;
+    P.seg_state.v[seg_word(P, SEG_NY, slot, q)] = s.N.y;
+    P.seg_state.v[seg_word(P, SEG_NZ, slot, q)] = s.N.z;
+    P.seg_state.v[seg_word(P, SEG_DIST, slot, q)] = s.dist_l;
+    P.seg_state.v[seg_word(P, SEG_MEND, slot, q)] = s.dist_m;
+    P.seg_state.v[seg_word(P, SEG_TEND, slot, q)] = s.T;
+    P.seg_state.v[seg_word(P, SEG_LAST, slot, q)] = uintBitsToFloat(s.last);
+    P.seg_state.v[seg_word(P, SEG_TLAST, slot, q)] = s.t_last;
+    P.seg_state.v[seg_word(P, SEG_MEDID, slot, q)] = uintBitsToFloat(s.med_id);
+    P.seg_state.v[seg_word(P, SEG_MEDT, slot, q)] = s.med_t;
+    P.seg_state.v[seg_word(P, SEG_Q, slot, q)] = s.Q;
 }
 
 void px_store(FrameParams P, Px s) {
@@ -161,6 +199,7 @@ uint px_step(FrameParams P, inout Px s, Entry e, uint idx, bool need, bool track
             s.last = idx + 1u;
             s.t_last = T;
             s.C += wt * e.rgb;
+            if (pc.mode == SEG_EXACT) s.Q += wt * dot(e.rgb, e.rgb);
             if (frame_normals(P)) s.N += wt * e.nrm;
             // Voxel depth (supp. A.4, Eqs. 19-21); K = 1 uses the segment midpoint.
             float dval;
@@ -190,17 +229,47 @@ void main() {
     FrameParams P = pc.P;
     uint l = gl_LocalInvocationID.x;
     uint tiles_x = P.tiles.x;
-    uint tile = gl_WorkGroupID.y * tiles_x + gl_WorkGroupID.x;
+    // The tile and the part of its list this workgroup walks: chunk `pc.chunk` of the
+    // tile of this workgroup, or the segment of this workgroup's slot.
+    uint tile, slot = 0u, start, end;
+    uint r0, r1;
+    if (pc.mode == SEG_OFF) {
+        tile = gl_WorkGroupID.y * tiles_x + gl_WorkGroupID.x;
+        r0 = P.ranges.v[2u * tile];
+        r1 = P.ranges.v[2u * tile + 1u];
+        start = r0 + min(r1 - r0, pc.chunk * P.chunk_size);
+        end = min(r1, start + P.chunk_size);
+        if (l == 0u) {
+            if (pc.chunk == 0u) atomicMax(P.stats.v[STAT_MAX_TILE], r1 - r0);
+            if (pc.chunk + 1u == P.chunks && end < r1)
+                atomicOr(P.stats.v[STAT_FLAGS], FLAG_NEED_CHUNKS);
+        }
+    } else {
+        // Uniform exits: no slot here, or (SEG_TRANSMIT) the tile's last segment, whose
+        // product nothing behind it needs.
+        slot = linear_group_id();
+        if (slot >= P.slot_cap) return;
+        tile = P.seg_tile.v[slot];
+        if (tile == 0xffffffffu) return;
+        r0 = P.ranges.v[2u * tile];
+        r1 = P.ranges.v[2u * tile + 1u];
+        start = r0 + (slot - seg_first_slot(P, tile, r0)) * P.seg_size;
+        end = min(r1, start + P.seg_size);
+        if (pc.mode == SEG_TRANSMIT && end == r1) return;
+    }
+    uvec2 org = uvec2(tile % tiles_x, tile / tiles_x) * 16u;
     uvec2 lp0 = walk_pixel(0u), lp1 = walk_pixel(1u);
-    Px s0 = px_init(P, lp0);
-    Px s1 = px_init(P, lp1);
+    Px s0 = px_init(P, lp0, org, slot);
+    Px s1 = px_init(P, lp1, org, slot);
     // Max-weight statistics: only when a target is set, and never from a frame whose
     // entries overflowed the key buffers (its tile lists miss voxels, which would
     // inflate the transmittance of those behind). A frame short of chunks composites
     // an exact prefix of every list, so its weights are the complete frame's.
     bool track_maxw = false;
 #ifdef TRACK_MAXW
-    track_maxw = U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u] <= uint64_t(P.entry_capacity);
+    // A segment's own transmittance (SEG_TRANSMIT) is not the frame's: no weights.
+    track_maxw = pc.mode != SEG_TRANSMIT &&
+                 U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u] <= uint64_t(P.entry_capacity);
 #endif
 #ifdef COUNTERS
     // Per invocation (a dispatch stays far below 2^32 of each).
@@ -208,18 +277,8 @@ void main() {
          c_build = 0u;
 #endif
     uint sg = gl_SubgroupID;
-    uvec2 org = gl_WorkGroupID.xy * 16u;
     if (l < 2u) s_live[l] = 0u;
     walk_setup(l, lp0, lp1, s0.sign, s1.sign, s0.inside, s1.inside);
-
-    uint chunk_size = P.chunk_size;
-    uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];
-    uint start = r0 + min(r1 - r0, pc.chunk * chunk_size);
-    uint end = min(r1, start + chunk_size);
-    if (l == 0u) {
-        if (pc.chunk == 0u) atomicMax(P.stats.v[STAT_MAX_TILE], r1 - r0);
-        if (pc.chunk + 1u == P.chunks && end < r1) atomicOr(P.stats.v[STAT_FLAGS], FLAG_NEED_CHUNKS);
-    }
     uint n = end - start;
 
     for (uint base = 0u, batch = 0u; base < n; base += STAGE_SLOTS, ++batch) {
@@ -274,6 +333,11 @@ void main() {
     flush_counters(ctr, CTR_FWD, c_trips, c_useful, c_dense, c_pairs, c_cross, c_contrib,
                    c_build);
 #endif
-    px_store(P, s0);
-    px_store(P, s1);
+    if (pc.mode == SEG_OFF) {
+        px_store(P, s0);
+        px_store(P, s1);
+    } else {
+        px_store_segment(P, s0, lp0, slot);
+        px_store_segment(P, s1, lp1, slot);
+    }
 }

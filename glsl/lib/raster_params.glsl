@@ -61,6 +61,11 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     // optional (0: off): the host's depth values at output resolution (row-major,
     // out_size), converted with depth_map: each ray ends at the host's surface
     F32s host_depth;
+    // Segmented compositing (seg_size > 0; see "Segments" below): the tile of each
+    // slot (~0: none), and SEG_CHANNELS planar per-pixel floats per slot
+    U32s seg_tile; F32s seg_state;
+    uint seg_size;   // entries per segment (0: segments off, chunks as before)
+    uint slot_cap;   // slots the two buffers above hold
 };
 
 // Work counters (bench): per walk, subgroup loop trips over entries; trips where at least
@@ -78,7 +83,9 @@ const uint STAT_USED = 2u;       // entries emitted and sorted (clamped to capac
 const uint STAT_FLAGS = 3u;      // FLAG_* bits
 const uint STAT_MAX_TILE = 4u;   // longest tile list
 const uint STAT_VISIBLE = 5u;    // voxels with at least one entry
+const uint STAT_SLOTS = 6u;      // segmented frames: slots the frame's lists need
 const uint STAT_ARGS = 8u;       // dispatch args of the entry-parallel kernels
+const uint STAT_SEG_ARGS = 11u;  // dispatch args over the slots (segmented frames)
 const uint STATS_WORDS = 16u;
 
 const uint FLAG_ENTRY_OVERFLOW = 1u;  // more entries than the key buffers hold
@@ -97,6 +104,47 @@ const uint CH_R = 0u, CH_G = 1u, CH_B = 2u, CH_T = 3u, CH_DEPTH = 4u, CH_DMED = 
 // transmittance in front of the last contributor (the backward starts there instead
 // of dividing by 1 - α, which reaches 1e-5 for a near-opaque last voxel).
 const uint AUX_M = 0u, AUX_DIST = 1u, AUX_T = 2u, AUX_TLAST = 3u, AUX_CHANNELS = 4u;
+
+// Segments. With seg_size = S > 0 a tile's sorted list [r0, r1) is cut into segments of
+// S entries, each composited by its own workgroup (every SM busy however few tiles the
+// image has), in three dispatches over the slots plus two per tile:
+//   1. SEG_TRANSMIT: every segment but a tile's last, from T = 1, records its own
+//      transmittance product and Σ w·m (local weights) per pixel (SEG_T, SEG_M);
+//   2. seg_compose (SEG_PREFIX): per pixel, in depth order over the tile's segments,
+//      the transmittance and Σ w·m in front of each segment (SEG_T, SEG_M replaced);
+//   3. SEG_EXACT: every segment walks again from that state — the sequential walk's
+//      own step, so every decision (early stop, median, last contributor, max weight)
+//      is taken on the frame's transmittance — and stores its partial sums;
+//   4. seg_compose (SEG_MERGE): per pixel, sums the partials in order and stores what
+//      a sequential walk stores.
+// The training backward walks the same segments, each from the state behind it
+// (train/seg_bmerge.comp computes it from the partial sums and the loss gradients).
+// Segment z of tile t (n_t = ceil((r1 - r0) / S) of them) has slot t + r0 / S + z: no
+// two tiles share a slot (the last slot of t is at most t + r1 / S), and every slot is
+// below tiles + used / S. A tile whose list fits one segment composites exactly as
+// without segments (from T = 1 and zero sums), bit for bit.
+const uint SEG_OFF = 0u, SEG_TRANSMIT = 1u, SEG_EXACT = 2u;  // composite modes
+const uint SEG_PREFIX = 0u, SEG_MERGE = 1u;                  // seg_compose modes
+const uint SEG_T = 0u, SEG_M = 1u, SEG_R = 2u, SEG_G = 3u, SEG_B = 4u, SEG_D = 5u,
+           SEG_NX = 6u, SEG_NY = 7u, SEG_NZ = 8u, SEG_DIST = 9u, SEG_MEND = 10u,
+           SEG_TEND = 11u, SEG_LAST = 12u, SEG_TLAST = 13u, SEG_MEDID = 14u, SEG_MEDT = 15u,
+           SEG_Q = 16u, SEG_BT = 17u, SEG_BA = 18u, SEG_BWA = 19u, SEG_BMA = 20u,
+           SEG_CHANNELS = 21u;
+// SEG_Q: Σ w·|c|² (the per-point RGB loss's part of the backward's boundary state).
+// SEG_BT..SEG_BMA: the backward's state at the back of each segment (train/seg_bmerge):
+// the transmittance there, the suffix A, Σ w and Σ w·m behind the segment — what the
+// chunked backward carries between chunks, so each segment walks back to front alone.
+
+uint seg_first_slot(FrameParams P, uint tile, uint r0) {
+    return tile + r0 / P.seg_size;
+}
+uint seg_count(FrameParams P, uint r0, uint r1) {
+    return (r1 - r0 + P.seg_size - 1u) / P.seg_size;
+}
+// Word of channel `ch` of pixel q (y * 16 + x in the tile) of slot `slot`.
+uint seg_word(FrameParams P, uint ch, uint slot, uint q) {
+    return (ch * P.slot_cap + slot) * 256u + q;
+}
 
 // Direction of pixel (px, py) (pixel centres at +0.5): unit world direction with
 // near-zero components flushed to exactly zero, and |camera-space direction| (whose

@@ -59,6 +59,10 @@ pub enum BenchCmd {
         /// Supersampling factor.
         #[arg(long, default_value_t = 1.0)]
         ss: f32,
+        /// Entries per segment of a tile's list in the composite (0: segments off;
+        /// default: the device's, 0 on CPU devices, 2048 on GPUs).
+        #[arg(long)]
+        segments: Option<u32>,
         #[arg(long)]
         json: bool,
     },
@@ -81,6 +85,10 @@ pub enum BenchCmd {
         /// Untimed warm-up iterations.
         #[arg(long, default_value_t = 3)]
         warmup: u32,
+        /// Entries per segment of a tile's list in the composite (0: segments off;
+        /// default: the device's, 0 on CPU devices, 2048 on GPUs).
+        #[arg(long)]
+        segments: Option<u32>,
         #[arg(long)]
         json: bool,
     },
@@ -160,6 +168,7 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             runs,
             samples,
             ss,
+            segments,
             json,
         } => bench_render(
             ctx,
@@ -173,6 +182,7 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
                 samples,
                 supersample: ss,
             },
+            segments,
             json,
         ),
         BenchCmd::Train {
@@ -182,6 +192,7 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             set,
             iters,
             warmup,
+            segments,
             json,
         } => {
             let format = super::train::format_preset(svraster::data::detect_format(&data));
@@ -189,7 +200,9 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
                 Some(p) => svraster::train::config::TrainConfig::resolve_preset(&p, format),
                 None => format.into(),
             };
-            bench_train(ctx, &data, downscale, &preset, &set, iters, warmup, json)
+            bench_train(
+                ctx, &data, downscale, &preset, &set, iters, warmup, segments, json,
+            )
         }
         BenchCmd::Trade {
             data,
@@ -257,6 +270,7 @@ fn bench_render(
     views: usize,
     runs: u32,
     opts: svraster::raster::RenderOptions,
+    segments: Option<u32>,
     json: bool,
 ) -> anyhow::Result<()> {
     use svraster::raster::Renderer;
@@ -272,6 +286,9 @@ fn bench_render(
     }
     let gpu = SceneGpu::upload(ctx, &scene)?;
     let mut r = Renderer::new(ctx)?;
+    if let Some(s) = segments {
+        r.set_segment_entries(s);
+    }
     let mut ts = Timestamps::new(ctx, 32)?;
     // Warm-up: pipelines compiled, buffers grown to what every view needs.
     for cam in &cams {
@@ -286,6 +303,7 @@ fn bench_render(
     let mut visible = Vec::new();
     let mut queue = QueueCost::default();
     let mut balance = Vec::new();
+    let mut walk_groups = Vec::new();
     for _ in 0..runs {
         for cam in &cams {
             let t = Instant::now();
@@ -293,6 +311,7 @@ fn bench_render(
             let wall = t.elapsed().as_secs_f64() * 1e3;
             wall_ms.push(wall);
             balance.push(tile_balance(&st));
+            walk_groups.push(walk_workgroups(&st));
             let s = ts.stages()?;
             frame_ms.push(s.iter().map(|(_, ms)| ms).sum());
             for (name, ms) in s {
@@ -359,7 +378,8 @@ fn bench_render(
             "entries_per_tile_median": median(&per_tile),
             "max_entries_per_tile": max_tile,
             "tile_balance_median": median(&balance),
-            "walk_workgroups_per_dispatch": tiles_of(w, h, opts.supersample),
+            "walk_workgroups_per_dispatch": median(&walk_groups),
+            "segment_entries": r.segment_entries(),
             "queue_per_frame": queue.json(),
             "device": ctx.info().name,
             "subgroup_size": ctx.info().subgroup_size,
@@ -392,7 +412,7 @@ fn bench_render(
             median(&dup),
             median(&per_tile),
             median(&balance),
-            tiles_of(w, h, opts.supersample)
+            median(&walk_groups)
         );
         println!("  per frame: {}", queue.text());
         print_work(&work, ctx.info().subgroup_size);
@@ -424,6 +444,7 @@ fn bench_train(
     set: &[String],
     iters: u32,
     warmup: u32,
+    segments: Option<u32>,
     json: bool,
 ) -> anyhow::Result<()> {
     use svraster::train::config::TrainConfig;
@@ -454,6 +475,9 @@ fn bench_train(
     cfg.tv_until = 1.0;
     cfg.validate()?;
     let mut t = Trainer::new(ctx, cfg.clone(), &train, None)?;
+    if let Some(s) = segments {
+        t.set_segment_entries(s)?;
+    }
     t.enable_timing()?;
     let mut groups: BTreeMap<&'static str, Vec<f64>> = BTreeMap::new();
     // Every timestamped part (kernel or kernel group); the text output lists them in
@@ -476,7 +500,7 @@ fn bench_train(
         }
         if let Some(st) = t.frame_stats() {
             balance.push(tile_balance(&st));
-            walk_groups.push(st.tiles as f64);
+            walk_groups.push(walk_workgroups(&st));
         }
         let mut sums: BTreeMap<&'static str, f64> = BTreeMap::new();
         for (name, ms) in t.stage_times() {
@@ -646,6 +670,11 @@ impl QueueCost {
     }
 }
 
+/// Workgroups of the frame's walk dispatch: one per tile, or with segments one per slot.
+fn walk_workgroups(st: &svraster::raster::FrameStats) -> f64 {
+    f64::from(if st.slots > 0 { st.slots } else { st.tiles })
+}
+
 /// Longest tile list over the mean list of the frame's tiles (1: perfectly even; the
 /// walk's one workgroup per tile waits for the longest).
 fn tile_balance(st: &svraster::raster::FrameStats) -> f64 {
@@ -655,16 +684,6 @@ fn tile_balance(st: &svraster::raster::FrameStats) -> f64 {
     } else {
         0.0
     }
-}
-
-/// Tiles (walk workgroups per composite dispatch) of a w×h frame at supersampling `ss`.
-fn tiles_of(w: u32, h: u32, ss: f32) -> u32 {
-    let t = svraster::raster::TILE;
-    let (rw, rh) = (
-        ((w as f64 * ss as f64).round() as u32).max(1),
-        ((h as f64 * ss as f64).round() as u32).max(1),
-    );
-    rw.div_ceil(t) * rh.div_ceil(t)
 }
 
 /// Mean of the per-iteration (or per-frame) counters.

@@ -74,6 +74,19 @@ impl DeviceInfo {
         }
     }
 
+    /// Entries per segment of a tile's list in the forward composite (0: segments off;
+    /// see `Renderer::set_segment_entries`). On a GPU, segments let many workgroups
+    /// share a long list, so a small image's few tiles still fill the device; 2048 is
+    /// a first choice, not yet measured against others on a GPU. Off on CPU devices,
+    /// whose few threads the tiles already keep busy (the extra pass would only cost).
+    pub fn segment_entries(&self) -> u32 {
+        if self.is_cpu {
+            0
+        } else {
+            2048
+        }
+    }
+
     /// Entries per backward dispatch: the per-entry work has more loops than the
     /// forward's (samples × corners, and a CAS loop per add without float atomics).
     pub fn backward_chunk_entries(&self, float_atomics: bool) -> u32 {

@@ -39,7 +39,7 @@ use crate::scene::SceneGpu;
 pub(crate) use counters::COUNTER_WORDS;
 pub use counters::{WalkCounters, WorkCounters};
 pub(crate) use params::AUX_CHANNELS;
-use params::{ChunkPush, FrameOkPush, FrameParams, ParamsPush, SetupPush};
+use params::{ChunkPush, FrameOkPush, FrameParams, ParamsPush, SegComposePush, SetupPush};
 use plan::Plan;
 pub use plan::{FrameGeometry, FrameOutputs};
 pub use readback::{FrameCheck, FrameStats, Gate, Image, CHECK_SLOTS};
@@ -66,7 +66,9 @@ const STAT_USED: usize = glsl::STAT_USED as usize;
 const STAT_FLAGS: usize = glsl::STAT_FLAGS as usize;
 const STAT_MAX_TILE: usize = glsl::STAT_MAX_TILE as usize;
 const STAT_VISIBLE: usize = glsl::STAT_VISIBLE as usize;
+const STAT_SLOTS: usize = glsl::STAT_SLOTS as usize;
 const STAT_ARGS: u64 = glsl::STAT_ARGS as u64;
+const STAT_SEG_ARGS: u64 = glsl::STAT_SEG_ARGS as u64;
 /// Words of `Renderer::checks`: the stats, then the sort's and the scan's first state
 /// words (their sticky errors at `ST_ERRORS`).
 const CHECK_WORDS: usize = STATS_WORDS + 2 * CHECK_STATE_WORDS;
@@ -117,6 +119,8 @@ struct RasterKernels {
     downsample: Kernel,
     host_output: Kernel,
     frame_ok: Kernel,
+    seg_plan: Kernel,
+    seg_compose: Kernel,
 }
 
 /// Host-frame settings of the frames recorded from now on (see `host/`).
@@ -163,6 +167,12 @@ pub struct Renderer {
     aux: GrowBuffer,
     /// Host-visible copies of queued frames' images ([`Renderer::render_each`]).
     image_slots: [GrowBuffer; 2],
+    /// Entries per segment (0: segments off; [`Renderer::set_segment_entries`]), the
+    /// slots the segment buffers hold, slot → tile, and the slots' per-pixel state.
+    seg_size: u32,
+    slot_cap: u32,
+    seg_tile: GrowBuffer,
+    seg_state: GrowBuffer,
     stats: Buffer,
     /// Host-visible copy of a frame's stats and its scan's and sort's state words
     /// (`record_checks`): read without a submission once the frame completed.
@@ -222,6 +232,8 @@ impl Renderer {
             downsample: Kernel::new(ctx, &kernels::RASTER_DOWNSAMPLE)?,
             host_output: Kernel::new(ctx, &kernels::RASTER_HOST_OUTPUT)?,
             frame_ok: Kernel::new(ctx, &kernels::RASTER_FRAME_OK)?,
+            seg_plan: Kernel::new(ctx, &kernels::RASTER_SEG_PLAN)?,
+            seg_compose: Kernel::new(ctx, &kernels::RASTER_SEG_COMPOSE)?,
         };
         Self::with_kernels(ctx, Arc::new(k))
     }
@@ -276,6 +288,10 @@ impl Renderer {
                 GrowBuffer::with_memory("raster.image-slot-0", Memory::Readback),
                 GrowBuffer::with_memory("raster.image-slot-1", Memory::Readback),
             ],
+            seg_size: ctx.info().segment_entries(),
+            slot_cap: 0,
+            seg_tile: GrowBuffer::new("raster.seg-tile"),
+            seg_state: GrowBuffer::new("raster.seg-state"),
             stats,
             checks,
             check_seq: 0,
@@ -525,6 +541,18 @@ impl Renderer {
             maxw: self.maxw_target,
             counters: self.counters_address(),
             host_depth: self.host.map_or(0, |h| h.depth),
+            seg_tile: if self.seg_size > 0 {
+                self.seg_tile.address()
+            } else {
+                0
+            },
+            seg_state: if self.seg_size > 0 {
+                self.seg_state.address()
+            } else {
+                0
+            },
+            seg_size: self.seg_size,
+            slot_cap: self.slot_cap,
         };
         let dev = ctx.device();
         let pa = ParamsPush {
@@ -538,6 +566,10 @@ impl Renderer {
         }
         recorder::zero(&ctx, cmd, &self.stats);
         recorder::fill(&ctx, cmd, self.ranges.get(), 0, plan.tiles as u64 * 8, 0);
+        if self.seg_size > 0 {
+            let words = u64::from(self.slot_cap) * 4;
+            recorder::fill(&ctx, cmd, self.seg_tile.get(), 0, words, u32::MAX);
+        }
         if let (Some(c), true) = (&self.counters, plan.counters) {
             recorder::zero(&ctx, cmd, c);
         }
@@ -659,17 +691,21 @@ impl Renderer {
         } else {
             &self.k.composite[variant][si]
         };
-        for chunk in 0..plan.chunks {
-            k.dispatch(
-                cmd,
-                &ChunkPush {
-                    params: self.params.address(),
-                    chunk,
-                    pad: 0,
-                },
-                tiles_xy,
-            );
-            recorder::barrier(&ctx, cmd);
+        if self.seg_size > 0 {
+            self.record_segments(cmd, k, tiles_xy, plan.tiles);
+        } else {
+            for chunk in 0..plan.chunks {
+                k.dispatch(
+                    cmd,
+                    &ChunkPush {
+                        params: self.params.address(),
+                        chunk,
+                        mode: glsl::SEG_OFF,
+                    },
+                    tiles_xy,
+                );
+                recorder::barrier(&ctx, cmd);
+            }
         }
         if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "composite");
@@ -694,6 +730,64 @@ impl Renderer {
             sort_bits: plan.sort_bits,
             ..Default::default()
         })
+    }
+
+    /// The segmented composite ("Segments" in raster_params.glsl): slots planned per
+    /// tile, every segment's own transmittance, the state in front of each segment, the
+    /// exact walk of every segment, the merge.
+    fn record_segments(
+        &self,
+        cmd: vk::CommandBuffer,
+        k: &crate::gpu::Kernel,
+        tiles_xy: [u32; 3],
+        tiles: u32,
+    ) {
+        let ctx = &self.ctx;
+        let params = self.params.address();
+        self.k
+            .seg_plan
+            .dispatch_1d(cmd, &ParamsPush { params }, tiles);
+        recorder::barrier(ctx, cmd);
+        let args = STAT_SEG_ARGS * 4;
+        for (mode, compose) in [
+            (glsl::SEG_TRANSMIT, glsl::SEG_PREFIX),
+            (glsl::SEG_EXACT, glsl::SEG_MERGE),
+        ] {
+            let push = ChunkPush {
+                params,
+                chunk: 0,
+                mode,
+            };
+            k.dispatch_indirect(cmd, &push, self.stats.raw(), args);
+            recorder::barrier(ctx, cmd);
+            let push = SegComposePush {
+                params,
+                mode: compose,
+                pad: 0,
+            };
+            self.k.seg_compose.dispatch(cmd, &push, tiles_xy);
+            recorder::barrier(ctx, cmd);
+        }
+    }
+
+    /// Entries per segment of a tile's list (0: segments off, every tile walked by one
+    /// workgroup per chunk). Segments let many workgroups share a long list, so small
+    /// images with few tiles still fill a GPU. Default:
+    /// [`crate::gpu::DeviceInfo::segment_entries`].
+    /// Under a loop limit ([`crate::gpu::DeviceInfo::loop_limit`]) segments are at most
+    /// a forward or backward chunk long.
+    pub fn set_segment_entries(&mut self, entries: u32) {
+        let info = self.ctx.info();
+        // The backward walks the same segments in one dispatch: its chunk bounds them too.
+        let most = info
+            .forward_chunk_entries()
+            .min(info.backward_chunk_entries(false));
+        self.seg_size = entries.min(most);
+    }
+
+    /// Entries per segment (0: off).
+    pub fn segment_entries(&self) -> u32 {
+        self.seg_size
     }
 
     /// Renders a frame and reads it back, growing and re-rendering on any shortfall.
@@ -766,6 +860,8 @@ impl Renderer {
             &self.out_img,
             &self.last_id,
             &self.aux,
+            &self.seg_tile,
+            &self.seg_state,
         ]
         .iter()
         .map(|g| g.bytes())

@@ -69,6 +69,12 @@ pub(super) struct FrameParams {
     pub(super) counters: u64,
     /// Optional host depth values at output resolution (0: off), see `host/`.
     pub(super) host_depth: u64,
+    /// Segmented compositing (0 when off): slot → tile, and the slots' per-pixel state.
+    pub(super) seg_tile: u64,
+    pub(super) seg_state: u64,
+    /// Entries per segment (0: off) and slots held by the two buffers above.
+    pub(super) seg_size: u32,
+    pub(super) slot_cap: u32,
 }
 gpu_layout!(FrameParams, FrameParams);
 /// Planar channels of the per-pixel training aux buffer (`AUX_*` in raster_params.glsl).
@@ -107,10 +113,22 @@ push_constants!(FrameOkPush, kernels::RASTER_FRAME_OK);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub(super) struct SegComposePush {
+    pub(super) params: u64,
+    /// `SEG_PREFIX` or `SEG_MERGE` (raster_params.glsl).
+    pub(super) mode: u32,
+    pub(super) pad: u32,
+}
+push_constants!(SegComposePush, kernels::RASTER_SEG_COMPOSE);
+push_constants!(ParamsPush, kernels::RASTER_SEG_PLAN);
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct ChunkPush {
     pub(super) params: u64,
     pub(super) chunk: u32,
-    pub(super) pad: u32,
+    /// `SEG_OFF`, `SEG_TRANSMIT` or `SEG_EXACT` (raster_params.glsl).
+    pub(super) mode: u32,
 }
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1);
 push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2);

@@ -3,6 +3,7 @@
 
 use super::{RenderOptions, Renderer, AUX_CHANNELS, CHANNELS, MAX_IMAGE_EDGE, TILE};
 use crate::camera::Camera;
+use crate::gpu::glsl;
 use crate::scan::PrefixScan;
 use crate::scene::SceneGpu;
 use crate::sort::RadixSort;
@@ -23,6 +24,8 @@ pub(super) struct Plan {
     pub(super) counters: bool,
     /// What the composite accumulated besides colour, opacity and depth.
     pub(super) outputs: FrameOutputs,
+    /// Entries per segment (0: composited per tile in chunks).
+    pub(super) seg_size: u32,
 }
 
 /// What a frame accumulates besides colour, opacity, depth and median depth (see
@@ -83,6 +86,10 @@ pub struct FrameGeometry {
     pub counters: bool,
     /// What the frame accumulated besides colour, opacity and depth.
     pub outputs: FrameOutputs,
+    /// Segmented frames ("Segments" in raster_params.glsl): the buffer and byte offset
+    /// of the indirect dispatch arguments over the slots, for the backward's walk of
+    /// the same segments; `None` when the frame was composited per tile.
+    pub segment_args: Option<(ash::vk::Buffer, u64)>,
 }
 
 impl Renderer {
@@ -209,11 +216,14 @@ impl Renderer {
             supersampled: render_w != cam.width || render_h != cam.height,
             counters: self.counters_on,
             outputs: self.outputs,
+            seg_size: self.seg_size,
         })
     }
 
-    /// Allocates what a frame of `scene` seen by `cam` needs. Call before recording;
-    /// it may replace buffers, so no earlier frame of this renderer may be in flight.
+    /// Allocates what a frame of `scene` seen by `cam` needs. Call before recording. A
+    /// buffer it replaces is freed once the submissions pending on the context complete
+    /// (`gpu/queue.rs`); a host engine's own pending command buffers are its business
+    /// (see `host/`).
     pub fn prepare(&mut self, scene: &SceneGpu, cam: &Camera, opts: &RenderOptions) -> Result<()> {
         let plan = self.plan(scene, cam, opts)?;
         self.reserve_voxels(scene.voxels)?;
@@ -228,6 +238,23 @@ impl Renderer {
         self.med_t.ensure(&ctx, rpix * 4)?;
         self.last_id.ensure(&ctx, rpix * 4)?;
         self.aux.ensure(&ctx, rpix * AUX_CHANNELS * 4)?;
+        if let Some(per_entries) = self.entry_cap.checked_div(self.seg_size) {
+            // Slots stay below tiles + entries / S ("Segments" in raster_params.glsl).
+            let slots = u64::from(plan.tiles) + u64::from(per_entries) + 1;
+            let state = slots * u64::from(glsl::SEG_CHANNELS) * 256 * 4;
+            let limit = ctx.info().max_memory_allocation_size;
+            if state > limit || slots * 256 * u64::from(glsl::SEG_CHANNELS) > u64::from(u32::MAX) {
+                return Err(Error::Capacity(format!(
+                    "{slots} segments of {} entries need {state} bytes of segment state, more \
+                     than one allocation may hold ({limit}): use longer segments \
+                     (Renderer::set_segment_entries) or render smaller",
+                    self.seg_size
+                )));
+            }
+            self.slot_cap = slots as u32;
+            self.seg_tile.ensure(&ctx, slots * 4)?;
+            self.seg_state.ensure(&ctx, state)?;
+        }
         let opix = plan.out_w as u64 * plan.out_h as u64;
         self.out_img.ensure(
             &ctx,

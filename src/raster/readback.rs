@@ -6,7 +6,7 @@ use ash::vk;
 
 use super::{
     FrameOkPush, Renderer, CHANNELS, CHECK_STATE_WORDS, CHECK_WORDS, STATS_WORDS, STAT_FLAGS,
-    STAT_MAX_TILE, STAT_USED, STAT_VISIBLE, TILE,
+    STAT_MAX_TILE, STAT_SEG_ARGS, STAT_SLOTS, STAT_USED, STAT_VISIBLE, TILE,
 };
 use crate::gpu::glsl::{self, FLAG_ENTRY_OVERFLOW, FLAG_NEED_CHUNKS};
 use crate::gpu::{recorder, Buffer};
@@ -73,6 +73,9 @@ pub struct FrameStats {
     /// Composite chunks recorded and sort bits used.
     pub chunks: u32,
     pub sort_bits: u32,
+    /// Segmented frames: the slots (segment workgroups, one per segment, and the gaps
+    /// between tiles' slot ranges) the frame's lists needed; 0 without segments.
+    pub slots: u32,
 }
 
 impl FrameStats {
@@ -91,6 +94,7 @@ impl FrameStats {
             render_height: plan.render_h,
             chunks: plan.chunks,
             sort_bits: plan.sort_bits,
+            slots: s[STAT_SLOTS],
         }
     }
 
@@ -116,6 +120,7 @@ impl Renderer {
             params: self.params.address(),
             counters: p.counters,
             outputs: p.outputs,
+            segment_args: (p.seg_size > 0).then(|| (self.stats.raw(), STAT_SEG_ARGS * 4)),
         })
     }
 
@@ -224,6 +229,7 @@ impl Renderer {
             render_height: plan.render_h,
             chunks: plan.chunks,
             sort_bits: plan.sort_bits,
+            slots: 0,
         })
     }
 

@@ -18,7 +18,7 @@
 use ash::vk;
 
 use crate::gpu::{
-    kernels, recorder, Buffer, Context, GrowBuffer, Kernel, LazyKernel, Memory, Timestamps,
+    glsl, kernels, recorder, Buffer, Context, GrowBuffer, Kernel, LazyKernel, Memory, Timestamps,
 };
 use crate::push_constants;
 use crate::raster::{FrameGeometry, FrameStats};
@@ -280,6 +280,7 @@ struct Push2 {
     back: u64,
 }
 push_constants!(Push2, kernels::TRAIN_GRAD_PREPARE);
+push_constants!(Push2, kernels::TRAIN_SEG_BMERGE);
 push_constants!(Push2, kernels::TRAIN_VOXEL_BACKWARD);
 push_constants!(Push2, kernels::TRAIN_VOXEL_BACKWARD_CAS);
 
@@ -289,7 +290,9 @@ struct ChunkPush {
     frame: u64,
     back: u64,
     chunk: u32,
-    pad: u32,
+    /// The walk: `SEG_OFF` (per tile, in chunks) or `SEG_EXACT` (per segment); 0
+    /// for the other kernels.
+    mode: u32,
 }
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1);
 push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2);
@@ -341,6 +344,7 @@ struct OrderedKernels {
 pub struct Backward {
     ctx: Context,
     prepare_k: Kernel,
+    seg_bmerge: Kernel,
     /// [plain, work counters][samples - 1].
     backward: [[Kernel; 3]; 2],
     /// [samples - 1]: for frames without a normal image, made on first use.
@@ -441,6 +445,7 @@ impl Backward {
         Ok(Backward {
             ctx: ctx.clone(),
             prepare_k: Kernel::new(ctx, &kernels::TRAIN_GRAD_PREPARE)?,
+            seg_bmerge: Kernel::new(ctx, &kernels::TRAIN_SEG_BMERGE)?,
             backward: [
                 [
                     Kernel::new(ctx, k[0])?,
@@ -668,18 +673,34 @@ impl Backward {
         } else {
             &self.backward[frame.counters as usize][si]
         };
-        for chunk in (0..chunks).rev() {
-            k.dispatch(
-                cmd,
-                &ChunkPush {
-                    frame: frame.params,
-                    back: self.params.address(),
-                    chunk,
-                    pad: 0,
-                },
-                [frame.tiles_x, frame.tiles_y, 1],
-            );
+        if let Some((args, offset)) = frame.segment_args {
+            // Segmented frame: the state behind every segment, then every segment
+            // walked by its own workgroup (train/seg_bmerge.comp, backward.glsl).
+            self.seg_bmerge
+                .dispatch(cmd, &p2, [frame.tiles_x, frame.tiles_y, 1]);
             recorder::barrier(&ctx, cmd);
+            let push = ChunkPush {
+                frame: frame.params,
+                back: self.params.address(),
+                chunk: 0,
+                mode: glsl::SEG_EXACT,
+            };
+            k.dispatch_indirect(cmd, &push, args, offset);
+            recorder::barrier(&ctx, cmd);
+        } else {
+            for chunk in (0..chunks).rev() {
+                k.dispatch(
+                    cmd,
+                    &ChunkPush {
+                        frame: frame.params,
+                        back: self.params.address(),
+                        chunk,
+                        mode: glsl::SEG_OFF,
+                    },
+                    [frame.tiles_x, frame.tiles_y, 1],
+                );
+                recorder::barrier(&ctx, cmd);
+            }
         }
         if let (Some(_), Some(kk)) = (points, self.ordered.as_ref()) {
             // A voxel has at most one entry per tile and sign octant.
@@ -693,7 +714,7 @@ impl Backward {
                         frame: frame.params,
                         back: self.params.address(),
                         chunk: pass,
-                        pad: 0,
+                        mode: 0,
                     },
                     scene.voxels.max(1),
                 );

@@ -253,6 +253,14 @@ impl Trainer {
         Ok(())
     }
 
+    /// Entries per segment of the frame's composite (0: off; see
+    /// [`Renderer::set_segment_entries`]).
+    pub fn set_segment_entries(&mut self, entries: u32) -> Result<()> {
+        self.flush()?;
+        self.renderer.set_segment_entries(entries);
+        Ok(())
+    }
+
     /// Entries per composite and backward dispatch (tests: a small size makes the first
     /// frames need more dispatches than recorded, so iterations are redone).
     pub fn set_chunk_size(&mut self, entries: u32) {

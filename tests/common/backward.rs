@@ -128,9 +128,45 @@ pub fn gpu_grads_with(
     generic_walk: bool,
     outputs: FrameOutputs,
 ) -> svraster::Result<GpuGrads> {
+    gpu_grads_segmented(
+        ctx,
+        scene,
+        cam,
+        k,
+        pix,
+        spec,
+        reduction,
+        chunk,
+        ss,
+        generic_walk,
+        outputs,
+        None,
+    )
+}
+
+/// As [`gpu_grads_with`]; `segments`: entries per segment of the forward composite
+/// ([`Renderer::set_segment_entries`]; `None`: the device's default).
+#[allow(clippy::too_many_arguments)]
+pub fn gpu_grads_segmented(
+    ctx: &Context,
+    scene: &Scene,
+    cam: &Camera,
+    k: u32,
+    pix: &[PixelWeights],
+    spec: &LossSpec,
+    reduction: Reduction,
+    chunk: Option<u32>,
+    ss: f32,
+    generic_walk: bool,
+    outputs: FrameOutputs,
+    segments: Option<u32>,
+) -> svraster::Result<GpuGrads> {
     let gpu = SceneGpu::upload(ctx, scene).unwrap();
     let mut r = Renderer::new(ctx).unwrap();
     r.set_generic_walk(generic_walk);
+    if let Some(s) = segments {
+        r.set_segment_entries(s);
+    }
     r.set_outputs(outputs);
     let opts = RenderOptions {
         samples: k,

@@ -245,6 +245,14 @@ impl HostRenderer {
         }
     }
 
+    /// Entries per segment of a tile's list (0: off; see
+    /// [`Renderer::set_segment_entries`]), for the frames prepared from now on.
+    pub fn set_segment_entries(&mut self, entries: u32) {
+        for s in &mut self.slots {
+            s.renderer.set_segment_entries(entries);
+        }
+    }
+
     /// The stats of frame `frame_index` once the host has waited for its submission;
     /// `None` unless it is the latest frame recorded in its slot.
     pub fn finished(&self, frame_index: u64) -> Option<FrameStats> {
