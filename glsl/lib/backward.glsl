@@ -343,7 +343,10 @@ void main() {
         start = r0 + (slot - seg_first_slot(P, tile, r0)) * P.seg_size;
         end = min(r1, start + P.seg_size);
     }
-    uvec2 org = uvec2(tile % tiles_x, tile / tiles_x) * 16u;
+    // Without segments the origin comes from the workgroup id (not carried across the
+    // walk's barriers: llvmpipe saves live values at each).
+    uvec2 org = pc.mode == SEG_OFF ? gl_WorkGroupID.xy * 16u
+                                   : uvec2(tile % tiles_x, tile / tiles_x) * 16u;
     uvec2 lp0 = walk_pixel(0u), lp1 = walk_pixel(1u);
     BPx s0 = bpx_init(P, B, lp0, org, slot);
     BPx s1 = bpx_init(P, B, lp1, org, slot);

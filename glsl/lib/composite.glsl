@@ -257,7 +257,10 @@ void main() {
         end = min(r1, start + P.seg_size);
         if (pc.mode == SEG_TRANSMIT && end == r1) return;
     }
-    uvec2 org = uvec2(tile % tiles_x, tile / tiles_x) * 16u;
+    // Without segments the origin comes from the workgroup id (recomputed where used,
+    // not carried across the walk's barriers: llvmpipe saves live values at each).
+    uvec2 org = pc.mode == SEG_OFF ? gl_WorkGroupID.xy * 16u
+                                   : uvec2(tile % tiles_x, tile / tiles_x) * 16u;
     uvec2 lp0 = walk_pixel(0u), lp1 = walk_pixel(1u);
     Px s0 = px_init(P, lp0, org, slot);
     Px s1 = px_init(P, lp1, org, slot);
@@ -337,7 +340,7 @@ void main() {
         px_store(P, s0);
         px_store(P, s1);
     } else {
-        px_store_segment(P, s0, lp0, slot);
-        px_store_segment(P, s1, lp1, slot);
+        px_store_segment(P, s0, lp0, linear_group_id());
+        px_store_segment(P, s1, lp1, linear_group_id());
     }
 }

@@ -577,6 +577,7 @@ fn bench_train(
             "queue_per_iter": queue.json(),
             "tile_balance_median": median(&balance),
             "walk_workgroups_per_dispatch_median": median(&walk_groups),
+            "segment_entries": t.segment_entries(),
             "work_per_iter": work_json(&work),
         });
         println!("{obj}");

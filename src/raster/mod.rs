@@ -34,12 +34,13 @@ pub mod host;
 mod params;
 mod plan;
 mod readback;
+mod segments;
 mod stream;
 use crate::scene::SceneGpu;
 pub(crate) use counters::COUNTER_WORDS;
 pub use counters::{WalkCounters, WorkCounters};
 pub(crate) use params::AUX_CHANNELS;
-use params::{ChunkPush, FrameOkPush, FrameParams, ParamsPush, SegComposePush, SetupPush};
+use params::{ChunkPush, FrameOkPush, FrameParams, ParamsPush, SetupPush};
 use plan::Plan;
 pub use plan::{FrameGeometry, FrameOutputs};
 pub use readback::{FrameCheck, FrameStats, Gate, Image, CHECK_SLOTS};
@@ -730,64 +731,6 @@ impl Renderer {
             sort_bits: plan.sort_bits,
             ..Default::default()
         })
-    }
-
-    /// The segmented composite ("Segments" in raster_params.glsl): slots planned per
-    /// tile, every segment's own transmittance, the state in front of each segment, the
-    /// exact walk of every segment, the merge.
-    fn record_segments(
-        &self,
-        cmd: vk::CommandBuffer,
-        k: &crate::gpu::Kernel,
-        tiles_xy: [u32; 3],
-        tiles: u32,
-    ) {
-        let ctx = &self.ctx;
-        let params = self.params.address();
-        self.k
-            .seg_plan
-            .dispatch_1d(cmd, &ParamsPush { params }, tiles);
-        recorder::barrier(ctx, cmd);
-        let args = STAT_SEG_ARGS * 4;
-        for (mode, compose) in [
-            (glsl::SEG_TRANSMIT, glsl::SEG_PREFIX),
-            (glsl::SEG_EXACT, glsl::SEG_MERGE),
-        ] {
-            let push = ChunkPush {
-                params,
-                chunk: 0,
-                mode,
-            };
-            k.dispatch_indirect(cmd, &push, self.stats.raw(), args);
-            recorder::barrier(ctx, cmd);
-            let push = SegComposePush {
-                params,
-                mode: compose,
-                pad: 0,
-            };
-            self.k.seg_compose.dispatch(cmd, &push, tiles_xy);
-            recorder::barrier(ctx, cmd);
-        }
-    }
-
-    /// Entries per segment of a tile's list (0: segments off, every tile walked by one
-    /// workgroup per chunk). Segments let many workgroups share a long list, so small
-    /// images with few tiles still fill a GPU. Default:
-    /// [`crate::gpu::DeviceInfo::segment_entries`].
-    /// Under a loop limit ([`crate::gpu::DeviceInfo::loop_limit`]) segments are at most
-    /// a forward or backward chunk long.
-    pub fn set_segment_entries(&mut self, entries: u32) {
-        let info = self.ctx.info();
-        // The backward walks the same segments in one dispatch: its chunk bounds them too.
-        let most = info
-            .forward_chunk_entries()
-            .min(info.backward_chunk_entries(false));
-        self.seg_size = entries.min(most);
-    }
-
-    /// Entries per segment (0: off).
-    pub fn segment_entries(&self) -> u32 {
-        self.seg_size
     }
 
     /// Renders a frame and reads it back, growing and re-rendering on any shortfall.

@@ -280,7 +280,7 @@ impl Trainer {
             budget,
             budget_source,
             budget_logged: false,
-            go: ctx.zeroed_buffer("train.go", 4 * super::trainer::GO_WORDS)?,
+            go: ctx.zeroed_buffer("train.go", 4 * super::queue::GO_WORDS)?,
             last_stats: None,
             single: ctx.info().conditional_rendering,
             redone: 0,

@@ -8,6 +8,8 @@ pub mod config;
 mod init;
 pub mod loss;
 pub mod optim;
+mod queue;
 pub mod ssim;
 pub mod trainer;
+mod update;
 pub mod views;

@@ -5,11 +5,13 @@
 //! threshold, subdivide the top few percent by accumulated priority. Setting a run up
 //! (starting grid, budget, [`Trainer::new`]) is in `init.rs`.
 //!
-//! An iteration is one submission and one fence wait (where the device has conditional
-//! rendering): the frame, its checks, and the update in a region the GPU skips when the
-//! frame came out incomplete; the host then grows the buffers and runs the iteration
-//! again (see [`Trainer::step`]). Stats and give-up counters are read from host-visible
-//! memory, not downloaded.
+//! An iteration is one submission (where the device has conditional rendering): the
+//! frame, its checks, and the update in a region the GPU skips when the frame came out
+//! incomplete. The host waits for it only after submitting the next one behind it, then
+//! reads its stats and give-up counters from host-visible memory; an incomplete frame
+//! skips the iteration queued behind it too, and the host grows the buffers and runs
+//! both again (see [`Trainer::step`]; recording and settling are in `queue.rs`, the
+//! update in `update.rs`).
 //!
 //! Optimiser state across a layout change is *carried*, not reset: surviving parameters
 //! keep their Adam moments, children copy their parent's, new grid points interpolate and
@@ -18,20 +20,20 @@
 
 use rand::Rng;
 
-use super::backward::{Backward, EntryLosses, Gradients, Reduction};
+use super::backward::{Backward, Gradients, Reduction};
 use super::config::{Schedule, TrainConfig};
 use super::init::Moments;
-use super::loss::{LossWeights, NormalLoss, PixelLoss};
-use super::optim::{Adam, AdamConfig, Tv};
+use super::loss::{NormalLoss, PixelLoss};
+use super::optim::{Adam, Tv};
+use super::queue::{IterPlan, IterWeights, Queued};
 use super::ssim::Ssim;
 use super::views::TrainViews;
 use crate::adapt::stats::StatsPass;
 use crate::adapt::topology::Topology;
 use crate::camera::Camera;
-use ash::vk;
 
-use crate::gpu::{recorder, Context, Ticket, Timestamps};
-use crate::raster::{FrameCheck, FrameOutputs, FrameStats, Gate, RenderOptions, Renderer};
+use crate::gpu::{Context, Timestamps};
+use crate::raster::{FrameOutputs, FrameStats, RenderOptions, Renderer};
 use crate::scene::{Scene, SceneGpu};
 use crate::{Error, Result};
 
@@ -78,42 +80,6 @@ pub struct StepInfo {
     /// What the adaptive step after this iteration did, if one was scheduled.
     pub adapt: Option<AdaptReport>,
 }
-
-/// The loss weights and learning-rate scale of one iteration (the schedule's switches
-/// applied).
-#[derive(Clone, Copy)]
-struct IterWeights {
-    dist: f32,
-    nmed: f32,
-    nmean: f32,
-    tv: f32,
-    lr_scale: f32,
-}
-
-/// One iteration's draws and switches: what recording it (again) needs.
-#[derive(Clone)]
-struct IterPlan {
-    /// Adam step number (the 1-based iteration).
-    step: u32,
-    view: usize,
-    ss: f32,
-    degree: u32,
-    opts: RenderOptions,
-    outputs: FrameOutputs,
-    w: IterWeights,
-}
-
-/// An iteration submitted and not yet checked.
-pub(super) struct Queued {
-    plan: IterPlan,
-    ticket: Ticket,
-    check: FrameCheck,
-    /// Byte offset of its go word in `Trainer::go`.
-    go_offset: u64,
-}
-
-/// Go words in `Trainer::go`, used in turn.
-pub(super) const GO_WORDS: u64 = 2;
 
 /// Per-stage timestamps of the last iteration (ms), when enabled.
 pub type StageTimes = Vec<(String, f64)>;
@@ -259,6 +225,11 @@ impl Trainer {
         self.flush()?;
         self.renderer.set_segment_entries(entries);
         Ok(())
+    }
+
+    /// Entries per segment of the frame's walks (0: off).
+    pub fn segment_entries(&self) -> u32 {
+        self.renderer.segment_entries()
     }
 
     /// Entries per composite and backward dispatch (tests: a small size makes the first
@@ -420,359 +391,6 @@ impl Trainer {
         })
     }
 
-    /// Waits for the iteration still queued (if any) and settles it: its frame
-    /// checked, its update redone if the frame came out incomplete. Returns that
-    /// frame's stats. Everything that reads the model or optimiser state calls this
-    /// first.
-    pub fn flush(&mut self) -> Result<Option<FrameStats>> {
-        let Some(q) = self.queued.take() else {
-            return Ok(None);
-        };
-        self.ctx.wait(q.ticket)?;
-        self.check_lost()?;
-        let mut stats = self.renderer.checked_stats(&q.check)?;
-        if !stats.complete() {
-            self.redone += 1;
-            if !self.renderer.grow_for(&stats)? {
-                return Err(Error::Gpu(format!(
-                    "frame incomplete but nothing to grow: {stats:?}"
-                )));
-            }
-            stats = self.run_now(&q.plan)?;
-            self.check_lost()?;
-        }
-        self.last_stats = Some(stats);
-        Ok(Some(stats))
-    }
-
-    /// Waits for iteration `prev` while the one queued behind it runs, and checks its
-    /// frame. If it came out incomplete, both updates were skipped on the GPU: the
-    /// buffers grow, `prev` runs again (waited for) and the queued one is submitted
-    /// again behind it.
-    fn settle(&mut self, prev: Queued) -> Result<()> {
-        self.ctx.wait(prev.ticket)?;
-        self.check_lost()?;
-        let stats = self.renderer.checked_stats(&prev.check)?;
-        if stats.complete() {
-            self.last_stats = Some(stats);
-            return Ok(());
-        }
-        let cur = self
-            .queued
-            .take()
-            .ok_or_else(|| Error::Gpu("no iteration queued behind a skipped one".into()))?;
-        self.ctx.wait(cur.ticket)?;
-        // Measured on parameters one update stale: a capacity hint, grown for as well.
-        let cur_stats = self.renderer.checked_stats(&cur.check)?;
-        self.redone += 2;
-        if !self.renderer.grow_for(&stats)? {
-            return Err(Error::Gpu(format!(
-                "frame incomplete but nothing to grow: {stats:?}"
-            )));
-        }
-        if !cur_stats.complete() {
-            self.renderer.grow_for(&cur_stats)?;
-        }
-        let stats = self.run_now(&prev.plan)?;
-        self.check_lost()?;
-        self.last_stats = Some(stats);
-        let q = self.submit_iteration(&cur.plan, None)?;
-        self.queued = Some(q);
-        Ok(())
-    }
-
-    /// Errors if a compare-and-swap float add gave up since the run began (the
-    /// counters are cumulative, so reading them an iteration late misses nothing).
-    fn check_lost(&self) -> Result<()> {
-        if self.backward.read_lost()? != 0 || self.tv.read_lost()? != 0 {
-            return Err(Error::Gpu(
-                "compare-and-swap float adds gave up under contention: gradients are incomplete"
-                    .into(),
-            ));
-        }
-        Ok(())
-    }
-
-    /// Sets the host-side state iteration `plan` records with.
-    fn apply(&mut self, plan: &IterPlan) {
-        self.scene.sh_degree = plan.degree;
-        self.renderer.set_outputs(plan.outputs);
-    }
-
-    /// Records and submits iteration `plan` (frame, checks, its update in the frame's
-    /// conditional region) without waiting; `after`: the go word of the iteration
-    /// queued before it, whose skip this one follows.
-    fn submit_iteration(&mut self, plan: &IterPlan, after: Option<u64>) -> Result<Queued> {
-        self.apply(plan);
-        let cam = self.cams[plan.view].clone();
-        self.renderer.prepare(&self.scene, &cam, &plan.opts)?;
-        let go_offset = self.next_go();
-        let ctx = self.ctx.clone();
-        let (check, ticket) =
-            ctx.submit(|cmd| self.record_gated(cmd, plan, &cam, go_offset, after, &mut None))?;
-        Ok(Queued {
-            plan: plan.clone(),
-            ticket,
-            check,
-            go_offset,
-        })
-    }
-
-    /// The byte offset of the next go word (they alternate, so a queued iteration's
-    /// word outlives the recording of the next).
-    fn next_go(&mut self) -> u64 {
-        self.go_seq += 1;
-        4 * (self.go_seq % GO_WORDS)
-    }
-
-    /// Records iteration `plan`'s frame, checks, and update in the frame's conditional
-    /// region (go word at `go_offset`, chained after the word at `after`).
-    fn record_gated(
-        &mut self,
-        cmd: vk::CommandBuffer,
-        plan: &IterPlan,
-        cam: &Camera,
-        go_offset: u64,
-        after: Option<u64>,
-        timing: &mut Option<(Timestamps, Timestamps)>,
-    ) -> Result<FrameCheck> {
-        let ctx = self.ctx.clone();
-        self.renderer.record(
-            cmd,
-            &self.scene,
-            cam,
-            &plan.opts,
-            timing.as_mut().map(|t| &mut t.0),
-        )?;
-        let check = self.renderer.record_checks(
-            cmd,
-            Some(Gate {
-                go: &self.go,
-                offset: go_offset,
-                after: after.map(|o| (&self.go, o)),
-            }),
-        )?;
-        let planned = self.renderer.planned_stats()?;
-        recorder::begin_conditional(&ctx, cmd, &self.go, go_offset)?;
-        self.record_update(cmd, plan.view, cam, &planned, &plan.w, plan.step, timing)?;
-        recorder::end_conditional(&ctx, cmd)?;
-        Ok(check)
-    }
-
-    /// Renders view `plan.view` and takes its training step, waiting for it, growing
-    /// the frame buffers and repeating until the frame is complete; returns the
-    /// complete frame's stats (and, with timing on, its stage times).
-    fn run_now(&mut self, plan: &IterPlan) -> Result<FrameStats> {
-        self.apply(plan);
-        let cam = self.cams[plan.view].clone();
-        let mut timing = self.timing.take();
-        let res = self.run_now_timed(plan, &cam, &mut timing);
-        if let (Some(t), Ok(_)) = (timing.as_ref(), res.as_ref()) {
-            let mut all = t.0.stages()?;
-            all.extend(t.1.stages()?);
-            self.last_times = all;
-        }
-        self.timing = timing;
-        res
-    }
-
-    fn run_now_timed(
-        &mut self,
-        plan: &IterPlan,
-        cam: &Camera,
-        timing: &mut Option<(Timestamps, Timestamps)>,
-    ) -> Result<FrameStats> {
-        let ctx = self.ctx.clone();
-        if !self.single {
-            let redone = self.renderer.frames_grown();
-            let stats = self.renderer.render_to_device(
-                &self.scene,
-                cam,
-                &plan.opts,
-                timing.as_mut().map(|t| &mut t.0),
-            )?;
-            ctx.submit_and_wait(|cmd| {
-                self.record_update(cmd, plan.view, cam, &stats, &plan.w, plan.step, timing)
-            })?;
-            self.redone += self.renderer.frames_grown() - redone;
-            return Ok(stats);
-        }
-        for _attempt in 0..8 {
-            self.renderer.prepare(&self.scene, cam, &plan.opts)?;
-            let go_offset = self.next_go();
-            let check = ctx.submit_and_wait(|cmd| {
-                self.record_gated(cmd, plan, cam, go_offset, None, timing)
-            })?;
-            let stats = self.renderer.checked_stats(&check)?;
-            if stats.complete() {
-                return Ok(stats);
-            }
-            // The update was skipped on the GPU: grow and run the iteration again.
-            self.redone += 1;
-            if !self.renderer.grow_for(&stats)? {
-                return Err(Error::Gpu(format!(
-                    "frame incomplete but nothing to grow: {stats:?}"
-                )));
-            }
-        }
-        Err(Error::Gpu("frame still incomplete after 8 attempts".into()))
-    }
-
-    /// Records the update of the frame just recorded (`stats`: its stats, or what the
-    /// frame's plan lets the update assume): losses against view `view`, backward with
-    /// TV, and the Adam step of every parameter group.
-    #[allow(clippy::too_many_arguments)]
-    fn record_update(
-        &mut self,
-        cmd: vk::CommandBuffer,
-        view: usize,
-        cam: &Camera,
-        stats: &FrameStats,
-        w: &IterWeights,
-        step: u32,
-        timing: &mut Option<(Timestamps, Timestamps)>,
-    ) -> Result<()> {
-        let cfg = self.cfg.clone();
-        let ctx = self.ctx.clone();
-        let frame = self.renderer.last_frame()?;
-        if (frame.out_width, frame.out_height) != (cam.width, cam.height) {
-            return Err(Error::Invalid(format!(
-                "frame rendered at {}×{}, but training view {view} is {}×{}",
-                frame.out_width, frame.out_height, cam.width, cam.height
-            )));
-        }
-        self.backward.prepare(&frame, self.scene.voxels)?;
-        let nrender = frame.render_width * frame.render_height;
-        self.ssim.prepare(frame.out_width, frame.out_height)?;
-        let gt_addr = self.views.address(view);
-        let out_addr = self.renderer.output_address()?;
-        let dout_addr = self.backward.dout()?.address();
-        if let Some(t) = timing.as_mut() {
-            t.1.begin(cmd);
-        }
-        self.loss.record(
-            cmd,
-            &frame,
-            out_addr,
-            gt_addr,
-            dout_addr,
-            LossWeights {
-                mse: cfg.lambda_mse,
-                t_concentration: cfg.lambda_t,
-                t_inside: cfg.lambda_t_inside,
-            },
-        )?;
-        if w.nmed > 0.0 || w.nmean > 0.0 {
-            self.normal
-                .record(cmd, cam, out_addr, dout_addr, w.nmed, w.nmean)?;
-        }
-        if cfg.lambda_ssim > 0.0 {
-            self.ssim.record(
-                cmd,
-                out_addr,
-                gt_addr,
-                dout_addr,
-                -cfg.lambda_ssim,
-                frame.out_width,
-                frame.out_height,
-            )?;
-        }
-        if let Some(t) = timing.as_mut() {
-            t.1.mark(cmd, "losses");
-        }
-        let tv = &mut self.tv;
-        let scene = &self.scene;
-        let lambda_tv = w.tv;
-        self.backward.record_timed(
-            cmd,
-            &frame,
-            stats,
-            scene,
-            cfg.samples,
-            &self.grads,
-            &EntryLosses {
-                lambda_dist: w.dist / nrender as f32,
-                lambda_r: cfg.lambda_r / nrender as f32,
-            },
-            timing.as_mut().map(|t| &mut t.1),
-            |cmd, geo_target| {
-                // TV adds to the density gradients (the grid points', or the
-                // ordered reduction's voxel corners before their gather).
-                if lambda_tv > 0.0 {
-                    tv.record(
-                        cmd,
-                        scene.corners.address(),
-                        scene.geo.address(),
-                        geo_target,
-                        scene.voxels,
-                        lambda_tv,
-                    )?;
-                    recorder::barrier(&ctx, cmd);
-                }
-                Ok(())
-            },
-        )?;
-        if let Some(t) = timing.as_mut() {
-            t.1.mark(cmd, "backward.tv");
-        }
-        let groups = [
-            (
-                "optimizer.geo",
-                &self.scene.geo,
-                &self.grads.geo,
-                &self.mom[0],
-                self.scene.grid_points as u64,
-                self.schedule.lr_geo,
-            ),
-            (
-                "optimizer.sh0",
-                &self.scene.sh0,
-                &self.grads.sh0,
-                &self.mom[1],
-                self.scene.voxels as u64 * 3,
-                cfg.lr_sh0,
-            ),
-            (
-                "optimizer.shs",
-                &self.scene.shs,
-                &self.grads.shs,
-                &self.mom[2],
-                // The whole blocked device layout (padding stays zero).
-                crate::scene::shs_device_len(
-                    self.scene.voxels as usize,
-                    3 * self.scene.shs_per_voxel as usize,
-                ) as u64,
-                cfg.lr_shs,
-            ),
-        ];
-        for (label, p, g, m, count, lr) in groups {
-            if count == 0 {
-                continue;
-            }
-            self.adam.record(
-                cmd,
-                p.address(),
-                g.address(),
-                m.m.address(),
-                m.v.address(),
-                count as u32,
-                step,
-                &AdamConfig {
-                    lr: lr * w.lr_scale,
-                    beta1: cfg.beta1,
-                    beta2: cfg.beta2,
-                    eps: cfg.eps,
-                    skip_zero: cfg.sparse_adam,
-                },
-            );
-            if let Some(t) = timing.as_mut() {
-                t.1.mark(cmd, label);
-            }
-        }
-        recorder::barrier(&ctx, cmd);
-        Ok(())
-    }
-
     /// The voxel budget in force (see [`voxel_budget`]).
     pub fn budget(&self) -> u64 {
         self.budget
@@ -791,59 +409,6 @@ impl Trainer {
     /// Device memory the engine holds now (bytes).
     pub fn device_memory(&self) -> u64 {
         self.ctx.memory_allocated()
-    }
-
-    fn read_losses(
-        &self,
-        lambda_dist: f32,
-        lambda_tv: f32,
-        lambda_normal: (f32, f32),
-    ) -> Result<StepLosses> {
-        let cfg = &self.cfg;
-        let sums = self.loss.read()?;
-        let mse = sums.squared_error / (3.0 * sums.out_pixels as f64);
-        let tconc = sums.t_concentration / sums.out_pixels as f64;
-        let tin = sums.t_inside / sums.out_pixels as f64;
-        let dist = sums.distortion / sums.render_pixels as f64;
-        let ssim = if cfg.lambda_ssim > 0.0 {
-            self.ssim.read_value()?
-        } else {
-            f64::NAN
-        };
-        let tv = if lambda_tv > 0.0 {
-            self.tv.read_value()?
-        } else {
-            0.0
-        };
-        let (nmed, nmean) = if lambda_normal.0 > 0.0 || lambda_normal.1 > 0.0 {
-            let s = self.normal.read()?;
-            let n = f64::from(s.pixels.max(1));
-            (s.median / n, s.mean / n)
-        } else {
-            (0.0, 0.0)
-        };
-        let ssim_term = if ssim.is_finite() { 1.0 - ssim } else { 0.0 };
-        // The per-point RGB term is folded into the backward and not measured.
-        let loss = cfg.lambda_mse as f64 * mse
-            + cfg.lambda_ssim as f64 * ssim_term
-            + cfg.lambda_t as f64 * tconc
-            + cfg.lambda_t_inside as f64 * tin
-            + lambda_dist as f64 * dist
-            + lambda_tv as f64 * tv
-            + f64::from(lambda_normal.0) * nmed
-            + f64::from(lambda_normal.1) * nmean;
-        Ok(StepLosses {
-            loss,
-            mse,
-            psnr: -10.0 * mse.max(1e-20).log10(),
-            ssim,
-            t_concentration: tconc,
-            t_inside: tin,
-            normal_dmed: nmed,
-            normal_dmean: nmean,
-            distortion: dist,
-            tv,
-        })
     }
 
     /// Whether a non-finite gradient or parameter appeared since the last check.
