@@ -309,6 +309,27 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     Ok(summary)
 }
 
+/// The queue traffic since `last` (counters, iteration), per iteration, for stats.jsonl:
+/// submissions, fence waits that drained the queue, throttle waits, milliseconds blocked.
+fn queue_json(
+    trainer: &Trainer,
+    last: &mut (svraster::gpu::QueueCounters, u32),
+    iter: u32,
+) -> serde_json::Value {
+    let now = trainer.queue_counters();
+    let d = now - last.0;
+    let n = f64::from(iter.saturating_sub(last.1).max(1));
+    *last = (now, iter);
+    serde_json::json!({
+        "iters": n as u32,
+        "submits_per_iter": d.submits as f64 / n,
+        "fence_waits_per_iter": d.fence_waits as f64 / n,
+        "throttle_waits_per_iter": d.throttle_waits as f64 / n,
+        "wait_ms_per_iter": d.wait_ms / n,
+        "throttle_ms_per_iter": d.throttle_ms / n,
+    })
+}
+
 /// Redraws `RUN/training.png` from `RUN/stats.jsonl`. A chart that cannot be drawn is
 /// reported and training goes on (the statistics themselves are intact).
 fn curves(run: &Path) {
@@ -337,6 +358,9 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
     window.push(first, 0.0);
     let mut progress = Progress::new("train", u64::from(cfg.iters));
     progress.update(u64::from(first), || "starting".into());
+    // Queue traffic between logged steps (all of it: iterations, their logging, the
+    // adaptive steps and checkpoints in between).
+    let mut queue_last = (trainer.queue_counters(), first);
     while trainer.iter() < cfg.iters {
         if INTERRUPTS.load(Ordering::SeqCst) > 0 {
             progress.finish();
@@ -368,6 +392,7 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
                 "voxels": trainer.voxels(), "grid_points": trainer.grid_points(),
                 "device_memory": trainer.device_memory(), "elapsed_s": el,
                 "it_per_s": (info.iter - first) as f64 / el.max(1e-9),
+                "queue": queue_json(trainer, &mut queue_last, info.iter),
             });
             writeln!(stats, "{line}")
                 .with_context(|| format!("cannot write {}", stats_path.display()))?;

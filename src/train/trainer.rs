@@ -227,6 +227,11 @@ impl Trainer {
         Ok(())
     }
 
+    /// Queue traffic of the trainer's context so far ([`Context::queue_counters`]).
+    pub fn queue_counters(&self) -> crate::gpu::QueueCounters {
+        self.ctx.queue_counters()
+    }
+
     /// Entries per segment of the frame's walks (0: off).
     pub fn segment_entries(&self) -> u32 {
         self.renderer.segment_entries()
