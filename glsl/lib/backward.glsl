@@ -343,8 +343,9 @@ void main() {
         start = r0 + (slot - seg_first_slot(P, tile, r0)) * P.seg_size;
         end = min(r1, start + P.seg_size);
     }
-    // Without segments the origin comes from the workgroup id (not carried across the
-    // walk's barriers: llvmpipe saves live values at each).
+    // Without segments the origin is the workgroup id's, which the compiler recomputes
+    // where used instead of carrying it across the walk's barriers (llvmpipe saves live
+    // values at each).
     uvec2 org = pc.mode == SEG_OFF ? gl_WorkGroupID.xy * 16u
                                    : uvec2(tile % tiles_x, tile / tiles_x) * 16u;
     uvec2 lp0 = walk_pixel(0u), lp1 = walk_pixel(1u);
