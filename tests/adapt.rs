@@ -54,6 +54,18 @@ fn adaptive_schedule_follows_the_paper_and_scales() {
         .map(|a| a.iter)
         .collect();
     assert_eq!(subdiv, (1..=15).map(|k| k * 1000).collect::<Vec<_>>());
+    assert!(s.adapt.iter().all(|a| !a.subdivide_all), "off by default");
+    // SVRaster's synthetic config: subdivide everything at its first adaptive step.
+    let mut all = c.clone();
+    all.set("subdivide_all_until=0.05").unwrap();
+    let every: Vec<u32> = all
+        .schedule()
+        .adapt
+        .iter()
+        .filter(|a| a.subdivide_all)
+        .map(|a| a.iter)
+        .collect();
+    assert_eq!(every, vec![1000]);
 
     // A short run scales the milestones but waits |geo_init|/lr_geo iterations (here
     // 10/0.1 = 100) before the first step: earlier, no density has reached a surface.
@@ -114,6 +126,46 @@ fn reports_of(t: &mut Trainer) -> Vec<AdaptReport> {
     }
     t.check_finite().unwrap();
     out
+}
+
+/// A subdivide-all step (`subdivide_all_until`, SVRaster's synthetic first step) splits
+/// every candidate, not the top few percent: the same run's first subdivision with it
+/// splits far more voxels, and the layout stays consistent.
+#[test]
+fn subdivide_all_step_splits_every_candidate() {
+    let ctx = context();
+    let dir = demo_data("all", 32);
+    let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
+    let mut cfg = TrainConfig::preset("quick").unwrap();
+    cfg.iters = 200;
+    cfg.grid_level = 4;
+    cfg.subdivide_percent = 0.05;
+    cfg.subdivide_min_after = 0;
+    // The sampling-rate guard is not under test (32² views see coarse voxels only).
+    cfg.subdivide_min_rate = 0.0;
+    let first = |all: f64| {
+        let mut c = cfg.clone();
+        c.subdivide_all_until = all;
+        let mut t = Trainer::new(&ctx, c, &train, None).unwrap();
+        let r = reports_of(&mut t)
+            .into_iter()
+            .next()
+            .expect("an adaptive step");
+        assert_eq!(r.voxels, r.voxels_before - r.pruned + 7 * r.subdivided);
+        r
+    };
+    let top = first(0.0);
+    let all = first(1.0);
+    eprintln!(
+        "first step: {} of {} kept voxels split by priority, {} of {} with subdivide-all",
+        top.subdivided,
+        top.voxels_before - top.pruned,
+        all.subdivided,
+        all.voxels_before - all.pruned
+    );
+    assert!(top.subdivided > 0, "{top:?}");
+    assert!(all.subdivided >= 8 * top.subdivided, "{all:?} vs {top:?}");
+    finish(&ctx);
 }
 
 /// The demo's content fills a small part of a box twice the usual size: pruning and

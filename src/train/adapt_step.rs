@@ -44,16 +44,22 @@ impl Trainer {
                 Layout::Adaptive => {
                     // Priority 0 where the sampling-rate guard fails (Eq. 7: too few
                     // rays see the voxel for its children to be constrained).
+                    // A subdivide-all step (`subdivide_all_until`) takes every candidate,
+                    // also those that received no gradient yet, highest priority first
+                    // when the budget binds.
                     let mut cand: Vec<usize> = (0..n)
                         .filter(|&i| {
                             keep[i]
                                 && below_max(i)
                                 && rate[i] >= cfg.subdivide_min_rate
-                                && priority[i] > 0.0
+                                && (priority[i] > 0.0 || step.subdivide_all)
                         })
                         .collect();
-                    let wanted =
-                        ((kept as f64 * cfg.subdivide_percent).ceil() as usize).min(cand.len());
+                    let wanted = if step.subdivide_all {
+                        cand.len()
+                    } else {
+                        ((kept as f64 * cfg.subdivide_percent).ceil() as usize).min(cand.len())
+                    };
                     let take = wanted.min(room);
                     if take < wanted {
                         budget_reached = true;

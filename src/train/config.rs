@@ -152,6 +152,12 @@ pub struct TrainConfig {
     pub subdivide_min_after: u32,
     pub subdivide_percent: f64,
     pub subdivide_min_rate: f32,
+    /// Adaptive steps up to this fraction of the run that subdivide split *every*
+    /// candidate (kept, below `max_level`, sampling-rate guard passed), not only the top
+    /// `subdivide_percent`, within the budget: SVRaster's `subdivide_all_until` (its
+    /// synthetic config: 1 000 of 20 000 iterations, i.e. its first adaptive step). 0:
+    /// off, the default until measured at the paper's resolution (docs/PARITY.md).
+    pub subdivide_all_until: f64,
     pub max_level: u32,
     /// Voxel budget: subdivision stops here (0: derived from the device's memory).
     pub max_voxels: u64,
@@ -218,6 +224,7 @@ impl Default for TrainConfig {
             subdivide_min_after: 500,
             subdivide_percent: 0.05,
             subdivide_min_rate: 2.0,
+            subdivide_all_until: 0.0,
             max_level: crate::scene::MAX_LEVEL,
             max_voxels: 0,
             log_every: 100,
@@ -319,6 +326,8 @@ pub struct AdaptStep {
     pub prune_below: Option<f32>,
     /// Whether this step subdivides.
     pub subdivide: bool,
+    /// Whether it subdivides every candidate (`subdivide_all_until`).
+    pub subdivide_all: bool,
 }
 
 fn at(frac: f64, iters: u32) -> u32 {
@@ -537,6 +546,7 @@ impl TrainConfig {
             ("prune_until", self.prune_until),
             ("subdivide_until", self.subdivide_until),
             ("subdivide_percent", self.subdivide_percent),
+            ("subdivide_all_until", self.subdivide_all_until),
         ] {
             if !(f.is_finite() && (0.0..=1.0).contains(&f)) {
                 return bad(k, "is a fraction of the run: must be in [0, 1]");
@@ -607,6 +617,7 @@ impl TrainConfig {
         if self.layout != Layout::Fixed && self.adapt_every > 0.0 {
             let prune_until = at(self.prune_until, n);
             let subdivide_until = at(self.subdivide_until, n);
+            let subdivide_all_until = at(self.subdivide_all_until, n);
             let warmup = ((-self.geo_init).max(0.0) / self.lr_geo_used()).ceil() as u32;
             // Step k at from + k·every (iterations), every ≥ adapt_min_spacing.
             let every = (self.adapt_every * n as f64)
@@ -629,6 +640,7 @@ impl TrainConfig {
                         iter: it,
                         prune_below: (it <= prune_until).then_some(0.0),
                         subdivide: it <= subdivide_until && n - it >= self.subdivide_min_after,
+                        subdivide_all: it <= subdivide_all_until,
                     });
                 }
             }
