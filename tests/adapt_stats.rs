@@ -698,6 +698,32 @@ fn grow_and_retry_leaves_no_stale_statistics() {
     assert!(s.chunks > 1, "the test must need several chunks");
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
     assert!(bits(&got.max_weight) == bits(&want.max_weight));
+    // The views queued behind each other (what the adaptive step runs), with a renderer
+    // that must grow mid-queue: the same statistics; warm, one submission per view and
+    // one drain.
+    let mut queued = Renderer::new(&ctx).unwrap();
+    queued.set_chunk_size(40);
+    for warm in [false, true] {
+        pass.begin(n).unwrap();
+        let c0 = ctx.queue_counters();
+        pass.add_views(&mut queued, &gpu, &cams, 1).unwrap();
+        let c = ctx.queue_counters() - c0;
+        let q = pass.read().unwrap();
+        println!("queued views (warm {warm}): {c:?}");
+        assert!(bits(&q.max_weight) == bits(&want.max_weight), "warm {warm}");
+        assert!(
+            bits(&q.min_interval) == bits(&want.min_interval),
+            "warm {warm}"
+        );
+        if warm {
+            assert_eq!((c.submits, c.fence_waits), (cams.len() as u64, 1));
+        } else {
+            assert!(
+                c.submits > cams.len() as u64,
+                "the test must regrow mid-queue"
+            );
+        }
+    }
     assert!(bits(&got.min_interval) == bits(&want.min_interval));
     assert!(want.max_weight.iter().filter(|&&w| w > 0.0).count() > 10);
     finish(&ctx);

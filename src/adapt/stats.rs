@@ -29,9 +29,9 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
-use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel};
+use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Ticket};
 use crate::push_constants;
-use crate::raster::{RenderOptions, Renderer};
+use crate::raster::{FrameCheck, FrameStats, RenderOptions, Renderer};
 use crate::scene::Scene;
 use crate::scene::SceneGpu;
 
@@ -181,6 +181,94 @@ impl StatsPass {
         let params = renderer.last_frame()?.params;
         self.ctx
             .submit_and_wait(|cmd| self.record_interval_fold(cmd, params))
+    }
+
+    /// [`StatsPass::add_view`] for every camera of `cams`, each frame queued behind the
+    /// next: one submission per view, the frame and its interval fold together, and the
+    /// host waits for view i only after submitting view i+1 (no queue drain but the
+    /// last). A view whose frame came out incomplete is rendered again, waited for, as
+    /// in `add_view`: its first frame folded nothing stale (an overflowed frame folds no
+    /// weights, a frame short of chunks an exact prefix of them, and the interval fold
+    /// is a min over the same values), so the accumulators are those of `add_view`.
+    pub fn add_views(
+        &mut self,
+        renderer: &mut Renderer,
+        scene: &SceneGpu,
+        cams: &[Camera],
+        samples: u32,
+    ) -> Result<()> {
+        if scene.voxels != self.voxels {
+            return Err(Error::Invalid(format!(
+                "StatsPass::add_views: the scene has {} voxels, the accumulators {} \
+                 (call begin() for this scene)",
+                scene.voxels, self.voxels
+            )));
+        }
+        let mw_addr = self.buffers()?.0.address();
+        renderer.set_max_weight_target(Some(mw_addr));
+        let done = self.add_views_queued(renderer, scene, cams, samples);
+        renderer.set_max_weight_target(None);
+        done
+    }
+
+    fn add_views_queued(
+        &mut self,
+        renderer: &mut Renderer,
+        scene: &SceneGpu,
+        cams: &[Camera],
+        samples: u32,
+    ) -> Result<()> {
+        let opts = RenderOptions {
+            samples,
+            supersample: 1.0,
+        };
+        let ctx = self.ctx.clone();
+        // (view, submission, checks, stats read early)
+        type Queued = (usize, Ticket, FrameCheck, Option<FrameStats>);
+        let mut queued: Option<Queued> = None;
+        let submit = |me: &Self, renderer: &mut Renderer, i: usize| -> Result<Queued> {
+            renderer.prepare(scene, &cams[i], &opts)?;
+            let (check, ticket) = ctx.submit(|cmd| {
+                renderer.record(cmd, scene, &cams[i], &opts, None)?;
+                let check = renderer.record_checks(cmd, None)?;
+                if scene.voxels > 0 {
+                    me.record_interval_fold(cmd, renderer.last_frame()?.params)?;
+                }
+                Ok(check)
+            })?;
+            Ok((i, ticket, check, None))
+        };
+        for i in 0..=cams.len() {
+            let mut next = match i < cams.len() {
+                true => Some(submit(self, renderer, i)?),
+                false => None,
+            };
+            let Some((j, ticket, check, early)) = queued.take() else {
+                queued = next;
+                continue;
+            };
+            ctx.wait(ticket)?;
+            let stats = match early {
+                Some(s) => s,
+                None => renderer.checked_stats(&check)?,
+            };
+            if !stats.complete() {
+                // The view queued behind keeps its checks: read them before the redo
+                // reuses the slots.
+                if let Some(n) = next.as_mut() {
+                    ctx.wait(n.1)?;
+                    n.3 = Some(renderer.checked_stats(&n.2)?);
+                }
+                renderer.grow_for(&stats)?;
+                renderer.render_to_device(scene, &cams[j], &opts, None)?;
+                if scene.voxels > 0 {
+                    let params = renderer.last_frame()?.params;
+                    ctx.submit_and_wait(|cmd| self.record_interval_fold(cmd, params))?;
+                }
+            }
+            queued = next;
+        }
+        Ok(())
     }
 
     /// Records the interval fold of a frame recorded earlier (for callers recording

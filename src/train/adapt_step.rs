@@ -21,10 +21,9 @@ impl Trainer {
         let cfg = self.cfg.clone();
         let n = self.scene.voxels as usize;
         self.stats.begin(n as u32)?;
-        for cam in &self.cams {
-            self.stats
-                .add_view(&mut self.renderer, &self.scene, cam, cfg.samples)?;
-        }
+        // Every view queued behind the next (one submission each, no drain but the last).
+        self.stats
+            .add_views(&mut self.renderer, &self.scene, &self.cams, cfg.samples)?;
         let vs = self.stats.read()?;
         let stats_seconds = t0.elapsed().as_secs_f64();
         let priority: Vec<f32> = self.ctx.download(&self.grads.priority, 0, n)?;
