@@ -168,6 +168,42 @@ fn subdivide_all_step_splits_every_candidate() {
     finish(&ctx);
 }
 
+/// `reset_adam_at_adapt` (SVRaster's new optimiser at every adaptive step): right after
+/// a step the Adam moments are zero (carried otherwise), and training goes on.
+#[test]
+fn adam_reset_at_adaptive_steps() {
+    let ctx = context();
+    let dir = demo_data("reset", 32);
+    let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
+    let mut cfg = TrainConfig::preset("quick").unwrap();
+    cfg.iters = 200;
+    cfg.grid_level = 4;
+    let moments_after_first_step = |reset: bool| {
+        let mut c = cfg.clone();
+        c.reset_adam_at_adapt = reset;
+        let mut t = Trainer::new(&ctx, c, &train, None).unwrap();
+        while t.step(false).unwrap().adapt.is_none() {}
+        let zero = t
+            .optimizer_state()
+            .unwrap()
+            .iter()
+            .all(|m| m.iter().all(|&x| x == 0.0));
+        for _ in 0..3 {
+            t.step(false).unwrap();
+        }
+        t.check_finite().unwrap();
+        let moved = t
+            .optimizer_state()
+            .unwrap()
+            .iter()
+            .any(|m| m.iter().any(|&x| x != 0.0));
+        (zero, moved)
+    };
+    assert_eq!(moments_after_first_step(true), (true, true));
+    assert_eq!(moments_after_first_step(false), (false, true));
+    finish(&ctx);
+}
+
 /// The demo's content fills a small part of a box twice the usual size: pruning and
 /// subdivision must end with a model far smaller than a uniform grid of its finest level,
 /// and still fit the views.

@@ -11,6 +11,7 @@ use super::init::Moments;
 use super::trainer::Trainer;
 use crate::adapt::topology::Changed;
 use crate::adapt::AdaptReport;
+use crate::gpu::recorder;
 use crate::{Error, Result};
 
 impl Trainer {
@@ -114,6 +115,19 @@ impl Trainer {
                 self.grads.record_clear_priority(&ctx, cmd);
                 Ok(())
             })?;
+        }
+        if cfg.reset_adam_at_adapt && (step.prune_below.is_some() || step.subdivide) {
+            // SVRaster's new optimiser at this step: zero moments, count from here.
+            let ctx = self.ctx.clone();
+            ctx.submit_and_wait(|cmd| {
+                for m in &self.mom {
+                    recorder::zero(&ctx, cmd, &m.m);
+                    recorder::zero(&ctx, cmd, &m.v);
+                }
+                recorder::barrier(&ctx, cmd);
+                Ok(())
+            })?;
+            self.adam_base = self.adam_base_at(self.iter);
         }
         Ok(AdaptReport {
             iter: self.iter,

@@ -158,6 +158,11 @@ pub struct TrainConfig {
     /// synthetic config: 1 000 of 20 000 iterations, i.e. its first adaptive step). 0:
     /// off, the default until measured at the paper's resolution (docs/PARITY.md).
     pub subdivide_all_until: f64,
+    /// Zero the Adam moments and restart its bias-correction count at every adaptive
+    /// step that prunes or subdivides, as SVRaster does (it builds a new optimiser
+    /// there; docs/PARITY.md item 4). Off by default: moments are carried to the new
+    /// layout (a research switch, unmeasured at the paper's resolution).
+    pub reset_adam_at_adapt: bool,
     pub max_level: u32,
     /// Voxel budget: subdivision stops here (0: derived from the device's memory).
     pub max_voxels: u64,
@@ -225,6 +230,7 @@ impl Default for TrainConfig {
             subdivide_percent: 0.05,
             subdivide_min_rate: 2.0,
             subdivide_all_until: 0.0,
+            reset_adam_at_adapt: false,
             max_level: crate::scene::MAX_LEVEL,
             max_voxels: 0,
             log_every: 100,

@@ -288,6 +288,7 @@ impl Trainer {
             queued: None,
             go_seq: 0,
             counting: false,
+            adam_base: 0,
         })
     }
 

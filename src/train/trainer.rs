@@ -133,6 +133,9 @@ pub struct Trainer {
     pub(super) go_seq: u64,
     /// Work counters on (each iteration is then waited for).
     pub(super) counting: bool,
+    /// The iteration Adam's bias-correction count starts from (0, or the last adaptive
+    /// step with `reset_adam_at_adapt`).
+    pub(super) adam_base: u32,
 }
 
 impl Trainer {
@@ -270,6 +273,24 @@ impl Trainer {
             self.draw_ss(self.iter);
             self.iter += 1;
         }
+        // The optimiser's count restarts at the schedule's last resetting step, as in
+        // the run that saved the checkpoint.
+        self.adam_base = self.adam_base_at(self.iter);
+    }
+
+    /// Where Adam's count starts for iterations after `iter` completed ones: the last
+    /// adaptive step up to `iter` that prunes or subdivides, with `reset_adam_at_adapt`.
+    pub(super) fn adam_base_at(&self, iter: u32) -> u32 {
+        if !self.cfg.reset_adam_at_adapt {
+            return 0;
+        }
+        self.schedule
+            .adapt
+            .iter()
+            .filter(|s| s.iter <= iter && (s.prune_below.is_some() || s.subdivide))
+            .map(|s| s.iter)
+            .max()
+            .unwrap_or(0)
     }
 
     fn next_view(&mut self) -> usize {
@@ -317,7 +338,7 @@ impl Trainer {
             },
         };
         IterPlan {
-            step: it + 1,
+            step: it + 1 - self.adam_base,
             view,
             ss,
             degree: self.schedule.sh_degree(it).min(cfg.sh_degree),
