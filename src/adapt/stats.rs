@@ -14,9 +14,9 @@
 //!   the focal length in pixels (Eq. 7b: `z·tan(fov_x/2)/(W/2)`). Never-visible voxels
 //!   keep +inf.
 //!
-//! Grow-and-retry: [`StatsPass::add_view`] renders through
-//! [`Renderer::render_to_device`], which may render a view several times while it grows
-//! its buffers. A retried frame leaves nothing stale: a frame whose entries overflowed
+//! Grow-and-retry: [`StatsPass::add_views`] renders a view again (through
+//! [`Renderer::render_to_device`], which may render it several times while it grows its
+//! buffers) when its first frame came out incomplete. A retried frame leaves nothing stale: a frame whose entries overflowed
 //! folds no weights at all (the composite checks the entry total against the capacity;
 //! its tile lists miss voxels, which would *inflate* the weights of those behind them,
 //! so this case is not harmless for a max), a frame short of composite chunks folds the
@@ -157,30 +157,7 @@ impl StatsPass {
         cam: &Camera,
         samples: u32,
     ) -> Result<()> {
-        if scene.voxels != self.voxels {
-            return Err(Error::Invalid(format!(
-                "StatsPass::add_view: the scene has {} voxels, the accumulators {} \
-                 (call begin() for this scene)",
-                scene.voxels, self.voxels
-            )));
-        }
-        let mw_addr = self.buffers()?.0.address();
-        let opts = RenderOptions {
-            samples,
-            supersample: 1.0,
-        };
-        renderer.set_max_weight_target(Some(mw_addr));
-        let rendered = renderer.render_to_device(scene, cam, &opts, None);
-        renderer.set_max_weight_target(None);
-        rendered?;
-        if scene.voxels == 0 {
-            return Ok(());
-        }
-        // The frame completed (render_to_device waited for it); one more small
-        // submission folds its intervals. No per-view download.
-        let params = renderer.last_frame()?.params;
-        self.ctx
-            .submit_and_wait(|cmd| self.record_interval_fold(cmd, params))
+        self.add_views(renderer, scene, std::slice::from_ref(cam), samples)
     }
 
     /// [`StatsPass::add_view`] for every camera of `cams`, each frame queued behind the
@@ -199,7 +176,7 @@ impl StatsPass {
     ) -> Result<()> {
         if scene.voxels != self.voxels {
             return Err(Error::Invalid(format!(
-                "StatsPass::add_views: the scene has {} voxels, the accumulators {} \
+                "StatsPass::add_view(s): the scene has {} voxels, the accumulators {} \
                  (call begin() for this scene)",
                 scene.voxels, self.voxels
             )));

@@ -1,6 +1,7 @@
 //! clap commands.
 
 mod bench;
+mod bench_report;
 mod bench_sort;
 mod export;
 mod info;

@@ -4,6 +4,8 @@
 
 use serde::{Deserialize, Serialize};
 
+pub use super::schedule::{AdaptStep, Schedule};
+
 use crate::{Error, Result};
 
 /// The defaults' run length: milestones are given for it and scale with `iters`.
@@ -305,41 +307,6 @@ pub const PRESETS: &[(&str, &str)] = &[
     ),
 ];
 
-/// Milestones of a run, in iterations (recorded in config.json).
-#[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct Schedule {
-    /// The density learning rate used (before the decay), see [`TrainConfig::lr_geo_used`].
-    pub lr_geo: f32,
-    /// Iterations at which the SH degree goes up by one.
-    pub sh_degree_up: Vec<u32>,
-    pub ss_from: u32,
-    pub lr_decay_at: u32,
-    pub dist_from: u32,
-    pub normal_dmed_from: u32,
-    pub normal_dmean_from: u32,
-    pub tv_until: u32,
-    pub checkpoints: Vec<u32>,
-    /// Adaptive steps (after this many iterations), in order.
-    pub adapt: Vec<AdaptStep>,
-}
-
-/// One adaptive step of the schedule.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct AdaptStep {
-    /// Runs after this many completed iterations.
-    pub iter: u32,
-    /// Max-blend-weight threshold of the pruning (None: no pruning at this step).
-    pub prune_below: Option<f32>,
-    /// Whether this step subdivides.
-    pub subdivide: bool,
-    /// Whether it subdivides every candidate (`subdivide_all_until`).
-    pub subdivide_all: bool,
-}
-
-fn at(frac: f64, iters: u32) -> u32 {
-    (frac * iters as f64).round().clamp(0.0, iters as f64) as u32
-}
-
 impl TrainConfig {
     /// The defaults of a preset.
     pub fn preset(name: &str) -> Result<TrainConfig> {
@@ -595,92 +562,6 @@ impl TrainConfig {
         }
         Ok(())
     }
-
-    /// The run's milestones in iterations.
-    pub fn schedule(&self) -> Schedule {
-        let n = self.iters;
-        let mut sh = Vec::new();
-        // sh_every = 0: every degree from the first iteration (the reference's
-        // sh_degree_init = 3).
-        for d in 1..=self.sh_degree {
-            sh.push(at(self.sh_every * d as f64, n));
-        }
-        let mut checkpoints = Vec::new();
-        if self.checkpoint_every > 0.0 {
-            let mut k = 1;
-            loop {
-                let it = at(self.checkpoint_every * k as f64, n);
-                if it >= n || it == 0 {
-                    break;
-                }
-                if checkpoints.last() != Some(&it) {
-                    checkpoints.push(it);
-                }
-                k += 1;
-            }
-        }
-        let mut adapt = Vec::new();
-        if self.layout != Layout::Fixed && self.adapt_every > 0.0 {
-            let prune_until = at(self.prune_until, n);
-            let subdivide_until = at(self.subdivide_until, n);
-            let subdivide_all_until = at(self.subdivide_all_until, n);
-            let warmup = ((-self.geo_init).max(0.0) / self.lr_geo_used()).ceil() as u32;
-            // Step k at from + k·every (iterations), every ≥ adapt_min_spacing.
-            let every = (self.adapt_every * n as f64)
-                .max(f64::from(self.adapt_min_spacing))
-                .max(1.0);
-            let mut k = 0;
-            loop {
-                let it = (self.adapt_from * n as f64 + every * k as f64)
-                    .round()
-                    .clamp(0.0, n as f64) as u32;
-                k += 1;
-                if it >= n || it > prune_until.max(subdivide_until) {
-                    break;
-                }
-                if it == 0 || it < warmup {
-                    continue;
-                }
-                if adapt.last().map(|s: &AdaptStep| s.iter) != Some(it) {
-                    adapt.push(AdaptStep {
-                        iter: it,
-                        prune_below: (it <= prune_until).then_some(0.0),
-                        subdivide: it <= subdivide_until && n - it >= self.subdivide_min_after,
-                        subdivide_all: it <= subdivide_all_until,
-                    });
-                }
-            }
-            // Threshold ramps linearly from the first pruning to the last.
-            let prunes = adapt.iter().filter(|s| s.prune_below.is_some()).count();
-            let mut i = 0;
-            for s in adapt.iter_mut() {
-                if s.prune_below.is_some() {
-                    let f = if prunes > 1 {
-                        i as f32 / (prunes - 1) as f32
-                    } else {
-                        0.0
-                    };
-                    s.prune_below = Some(
-                        self.prune_thres_init
-                            + f * (self.prune_thres_final - self.prune_thres_init),
-                    );
-                    i += 1;
-                }
-            }
-        }
-        Schedule {
-            lr_geo: self.lr_geo_used(),
-            adapt,
-            sh_degree_up: sh,
-            ss_from: at(self.ss_from, n),
-            lr_decay_at: at(self.lr_decay_at, n),
-            dist_from: at(self.dist_from, n),
-            normal_dmed_from: at(self.normal_dmed_from, n),
-            normal_dmean_from: at(self.normal_dmean_from, n),
-            tv_until: at(self.tv_until, n),
-            checkpoints,
-        }
-    }
 }
 
 impl TrainConfig {
@@ -697,12 +578,5 @@ impl TrainConfig {
     pub fn lr_geo_used(&self) -> f32 {
         let f = (REFERENCE_ITERS as f64 / self.iters.max(1) as f64).sqrt();
         self.lr_geo * f.clamp(1.0, self.lr_geo_scale_max.max(1.0) as f64) as f32
-    }
-}
-
-impl Schedule {
-    /// Active SH degree at iteration `it` (0-based).
-    pub fn sh_degree(&self, it: u32) -> u32 {
-        self.sh_degree_up.iter().filter(|&&m| it >= m).count() as u32
     }
 }

@@ -9,6 +9,7 @@ mod init;
 pub mod loss;
 pub mod optim;
 mod queue;
+mod schedule;
 pub mod ssim;
 pub mod trainer;
 mod update;
