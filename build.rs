@@ -546,6 +546,8 @@ fn constants_module(glsl: &Path, headers: &[&PathBuf]) -> String {
 ///   (`_det`) plain per-voxel-corner writes for the ordered reduction.
 /// - `sort/histogram[_k32]`, `sort/onesweep[_k32]`: the radix sort's digit histogram
 ///   and pass over u64 keys, or (`_k32`) u32 keys for a sort whose bits all lie below 32.
+/// - `sort/onesweep_c{256,128}[_k32]`: the pass with coalesced writes (GPUs), 256
+///   invocations for subgroups of ≥ 16 lanes, 128 for any size.
 fn variants() -> Vec<Variant> {
     variant_table()
 }
@@ -566,6 +568,25 @@ fn variant_table() -> Vec<Variant> {
             body,
             vec![("KEY32", "1".to_string())],
         ));
+    }
+    // The GPU pass (coalesced writes through shared memory): 256 invocations for
+    // subgroups of 16 lanes or more, 128 for any subgroup size (8-lane devices).
+    for (wg, min_sg) in [(256, 16), (128, 8)] {
+        for (suffix, key32) in [("", false), ("_k32", true)] {
+            let mut d = vec![
+                ("WG", wg.to_string()),
+                ("KPT", "15".to_string()),
+                ("MIN_SG", min_sg.to_string()),
+            ];
+            if key32 {
+                d.push(("KEY32", "1".to_string()));
+            }
+            v.push((
+                format!("sort/onesweep_c{wg}{suffix}"),
+                "onesweep_coalesced.glsl",
+                d,
+            ));
+        }
     }
     // Float adds: native atomics (VK_EXT_shader_atomic_float) or a CAS loop (any device).
     for (body, name) in [

@@ -6,7 +6,7 @@ mod common;
 use common::Rng;
 use svraster::gpu::{recorder, Context, Memory};
 use svraster::scan::PrefixScan;
-use svraster::sort::{Count, KeyWidth, RadixSort, SortScratch, Sorted, ERR_OVERFLOW};
+use svraster::sort::{Count, KeyWidth, RadixSort, SortPass, SortScratch, Sorted, ERR_OVERFLOW};
 
 const SIZES: &[usize] = &[
     0,
@@ -74,6 +74,16 @@ impl Harness {
         sort.set_generic_rank(generic);
         let buf = SortScratch::new(&ctx, capacity).unwrap();
         Harness { ctx, sort, buf }
+    }
+    /// A chosen pass kernel on `ctx`.
+    fn with_pass(ctx: &Context, capacity: u32, pass: SortPass) -> Self {
+        let sort = RadixSort::with_pass(ctx, capacity, pass).unwrap();
+        let buf = SortScratch::new(ctx, capacity).unwrap();
+        Harness {
+            ctx: ctx.clone(),
+            sort,
+            buf,
+        }
     }
     /// Sorts keys of `width` (u64 or u32) by bits `lo..hi`; returns the GPU result.
     fn run_keys<K: bytemuck::Pod>(
@@ -193,6 +203,126 @@ fn sort_high_bits_only() {
 #[test]
 fn sort_low_byte_only() {
     check_dist(Dist::LowByteOnly, 7);
+}
+
+/// Every pass kernel this device runs (all three on a GPU; on lavapipe, whose 8-lane
+/// subgroups `c256` does not support, `direct` and `c128`, which is `c256`'s body with
+/// 128 invocations), with the shuffle and the ballot ranking, u64 and u32 keys, the
+/// look-back's recount fallback forced (spin limit 0) and not, against the reference.
+#[test]
+fn sort_every_pass_kernel() {
+    let ctx = common::context();
+    let mut rng = Rng(77);
+    for pass in SortPass::ALL {
+        if !pass.supported(ctx.info()) {
+            println!(
+                "{}: not supported by {}, skipped",
+                pass.name(),
+                ctx.info().name
+            );
+            continue;
+        }
+        let mut h = Harness::with_pass(&ctx, 1 << 20, pass);
+        assert_eq!(h.sort.pass(), pass);
+        for (generic, spin) in [(false, None), (true, None), (false, Some(0))] {
+            h.sort.set_generic_rank(generic);
+            h.sort.set_spin_limit(spin);
+            for dist in [
+                Dist::Uniform,
+                Dist::ThreeValues,
+                Dist::LowByteOnly,
+                Dist::Sorted,
+                Dist::Reversed,
+            ] {
+                for &n in &[1usize, 255, 1921, 3841, 65_537, 1 << 20] {
+                    let keys = keys_for(dist, n, &mut rng);
+                    let vals: Vec<u32> = (0..n as u32).collect();
+                    let what = |bits: &str| {
+                        format!(
+                            "pass {} generic {generic} spin {spin:?} {dist:?} n={n} {bits}",
+                            pass.name()
+                        )
+                    };
+                    for (lo, hi) in [(0, 64), (5, 12), (13, 61)] {
+                        let (gk, gv) = h.run(&keys, &vals, lo, hi);
+                        let (rk, rv) = common::reference_sort(&keys, &vals, lo, hi);
+                        assert!(
+                            gk == rk && gv == rv,
+                            "{}",
+                            what(&format!("bits {lo}..{hi}"))
+                        );
+                    }
+                    let k32: Vec<u32> = keys.iter().map(|&k| k as u32).collect();
+                    let wide: Vec<u64> = k32.iter().map(|&k| k as u64).collect();
+                    let (gk, gv) = h.run32(&k32, &vals, 0, 26);
+                    let (rk, rv) = common::reference_sort(&wide, &vals, 0, 26);
+                    let rk: Vec<u32> = rk.iter().map(|&k| k as u32).collect();
+                    assert!(gk == rk && gv == rv, "{}", what("u32 bits 0..26"));
+                }
+            }
+        }
+    }
+    common::finish(&ctx);
+}
+
+/// Passes whose digit is the same for every key are skipped on the GPU, whichever
+/// passes they are and whether an odd or even number is skipped (the result is then
+/// copied to where the recorded passes end); with skipping off every pass runs. The
+/// mask of skipped passes is what the keys say, and the result is the reference's.
+#[test]
+fn sort_skips_constant_digits() {
+    let ctx = common::context();
+    let mut rng = Rng(91);
+    let n = 70_001usize;
+    for pass in SortPass::ALL
+        .into_iter()
+        .filter(|p| p.supported(ctx.info()))
+    {
+        let mut h = Harness::with_pass(&ctx, n as u32, pass);
+        // Bits that vary, as a mask over the 64 key bits.
+        for vary in [
+            u64::MAX,
+            0xff00,                // only digit 1 varies: 7 of 8 skipped (odd)
+            0x00ff_0000_0000_00ff, // digits 0 and 6: 6 skipped (even)
+            0x0fff_ffff_ffff_fff0, // digit 7 partly, digit 0 partly: none skipped
+            0x0000_ffff_0000_0000, // digits 4 and 5: 6 skipped
+            0x0000_0000_0000_0100, // one bit of digit 1
+            0,                     // all equal: all skipped
+        ] {
+            let base = rng.next_u64() & !vary;
+            let keys: Vec<u64> = (0..n).map(|_| base | (rng.next_u64() & vary)).collect();
+            let vals: Vec<u32> = (0..n as u32).collect();
+            for skip in [true, false] {
+                h.sort.set_skip_constant(skip);
+                for (lo, hi) in [(0u32, 64u32), (8, 48), (3, 60)] {
+                    let (gk, gv) = h.run(&keys, &vals, lo, hi);
+                    let (rk, rv) = common::reference_sort(&keys, &vals, lo, hi);
+                    let what = format!(
+                        "pass {} vary {vary:#x} skip {skip} bits {lo}..{hi}",
+                        pass.name()
+                    );
+                    assert!(gk == rk && gv == rv, "{what}: wrong result");
+                    let mut want = 0u32;
+                    if skip {
+                        for p in 0..(hi - lo).div_ceil(8) {
+                            let shift = lo + 8 * p;
+                            let width = (hi - shift).min(8);
+                            let digit_mask = ((1u64 << width) - 1) << shift;
+                            if vary & digit_mask == 0 {
+                                want |= 1 << p;
+                            }
+                        }
+                    }
+                    assert_eq!(
+                        h.sort.last_skipped().unwrap(),
+                        want,
+                        "{what}: skipped passes"
+                    );
+                }
+            }
+        }
+    }
+    common::finish(&ctx);
 }
 
 /// Odd bit ranges: one-bit digits, a last digit narrower than 8 bits, a single bit,

@@ -1,10 +1,14 @@
 //! Look-back correctness under real concurrency: lavapipe runs workgroups on
-//! LP_NUM_THREADS worker threads (1 thread hides races). The same 2^20 sort is run 20
-//! times by the CLI bench, which verifies every run, under validation.
+//! LP_NUM_THREADS worker threads (1 thread hides races; more threads than cores means
+//! a tile's predecessor can be descheduled mid-tile, so the recount fallback runs). The
+//! same 2^20 sort (hundreds of workgroups, far more than run at once) is run 20 times by
+//! the CLI bench, which verifies every run, under validation — with the direct pass
+//! and with the coalesced pass GPUs take (`c128`: the body of `c256` at 128
+//! invocations, which 8-lane subgroups support).
 
 use std::process::Command;
 
-fn run(threads: &str) {
+fn run(threads: &str, pass: &str) {
     let out = Command::new(env!("CARGO_BIN_EXE_svraster"))
         .args([
             "--validation",
@@ -17,6 +21,8 @@ fn run(threads: &str) {
             "--warmup",
             "0",
             "--json",
+            "--pass",
+            pass,
         ])
         .env("LP_NUM_THREADS", threads)
         .output()
@@ -25,20 +31,36 @@ fn run(threads: &str) {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(
         out.status.success(),
-        "LP_NUM_THREADS={threads}: svraster failed\n{stderr}\n{stdout}"
+        "LP_NUM_THREADS={threads} pass {pass}: svraster failed\n{stderr}\n{stdout}"
     );
     let v: serde_json::Value = serde_json::from_str(stdout.trim()).expect("bench JSON");
-    assert_eq!(v["failed_runs"], 0, "LP_NUM_THREADS={threads}: {stdout}");
+    assert_eq!(
+        v["failed_runs"], 0,
+        "LP_NUM_THREADS={threads} pass {pass}: {stdout}"
+    );
+    if pass != "auto" {
+        assert_eq!(v["pass_kernel"], pass);
+    }
     assert_eq!(v["verified"], true);
     assert_eq!(v["runs"], 20);
 }
 
 #[test]
 fn repeated_sort_two_threads() {
-    run("2");
+    run("2", "direct");
+    run("2", "c128");
+    // The device's own choice (c256 on GPUs with ≥ 16-lane subgroups).
+    run("2", "auto");
 }
 
 #[test]
 fn repeated_sort_four_threads() {
-    run("4");
+    run("4", "direct");
+    run("4", "c128");
+}
+
+#[test]
+fn repeated_sort_eight_threads() {
+    run("8", "direct");
+    run("8", "c128");
 }

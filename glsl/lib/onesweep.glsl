@@ -68,6 +68,13 @@ void main() {
     uint n = pc.state.v[ST_N];
     uint ntiles = (n + TILE - 1u) / TILE;
     if (tile >= ntiles) return; // uniform: every invocation read the same s_tile
+    // A skipped pass before this one (constant digit, sort/hist_scan.comp) swaps the
+    // ping-pong direction of every later pass.
+    bool flip = pc.state.v[ST_FLIP + pc.pass_index] != 0u;
+    KeyBuf keys_in = flip ? pc.keys_out : pc.keys_in;
+    U32s vals_in = flip ? pc.vals_out : pc.vals_in;
+    KeyBuf keys_out = flip ? pc.keys_in : pc.keys_out;
+    U32s vals_out = flip ? pc.vals_in : pc.vals_out;
 
     uint digit_mask = (1u << pc.bits) - 1u;
     uint sg = gl_SubgroupID;
@@ -85,8 +92,8 @@ void main() {
     for (uint r = 0u; r < KPT; r++) {
         uint idx = chunk + r * sgsize + lane;
         bool valid = idx < n;
-        k[r] = valid ? pc.keys_in.v[idx] : KeyT(0);
-        v[r] = valid ? pc.vals_in.v[idx] : 0u;
+        k[r] = valid ? keys_in.v[idx] : KeyT(0);
+        v[r] = valid ? vals_in.v[idx] : 0u;
     }
     for (uint r = 0u; r < KPT; r++) {
         uint idx = chunk + r * sgsize + lane;
@@ -192,7 +199,7 @@ void main() {
                 for (uint i = t; i < RADIX; i += WG) s_fallback[i] = 0u;
                 barrier();
                 for (uint r = 0u; r < KPT; r++) {
-                    KeyT key = pc.keys_in.v[j * TILE + r * WG + t];
+                    KeyT key = keys_in.v[j * TILE + r * WG + t];
                     atomicAdd(s_fallback[uint(key >> pc.shift) & digit_mask], 1u);
                 }
                 barrier();
@@ -231,8 +238,8 @@ void main() {
         if (idx < n) {
             uint d = rk[r] >> 16;
             uint dst = s_base[d] + s_rows[sg * RADIX + d] + (rk[r] & 0xffffu);
-            pc.keys_out.v[dst] = k[r];
-            pc.vals_out.v[dst] = v[r];
+            keys_out.v[dst] = k[r];
+            vals_out.v[dst] = v[r];
         }
     }
 }

@@ -11,7 +11,13 @@
 #define ST_ARGS_TILES 16  // VkDispatchIndirectCommand for tile kernels (x, y, z)
 #define ST_ARGS_CHUNKS 20 // VkDispatchIndirectCommand for the histogram kernel
 #define ST_HIST 32        // 8 passes x 256 digit counts, then exclusive offsets
-#define ST_WORDS (ST_HIST + 8 * 256)
+// Written by sort/hist_scan.comp: a pass whose digit is the same for every key is
+// skipped (its dispatch has 0 workgroups) and swaps the direction of the later ones.
+#define ST_PASS_ARGS 2080 // 8 x VkDispatchIndirectCommand: the tile grid, or 0 groups
+#define ST_FLIP 2104      // 8 words: 1 if pass p reads the buffers it would write
+#define ST_ARGS_COPY 2112 // VkDispatchIndirectCommand of the final copy (0 groups: none)
+#define ST_SKIPPED 2115   // bit p set: pass p was skipped
+#define ST_WORDS 2116
 
 #define ERR_OVERFLOW 1u   // count exceeded capacity: clamped
 #define ERR_LOOKBACK 2u   // look-back ran past tile 0 (cannot happen unless the state was corrupted)

@@ -12,7 +12,7 @@ layout(push_constant) uniform Push {
     uint lo;      // first bit sorted
     uint hi;      // one past the last bit sorted
     uint passes;  // ceil((hi - lo) / 8)
-    uint pad;
+    uint aggregate; // 1: a subgroup whose keys share a digit adds it once (GPUs)
 } pc;
 
 shared uint s_hist[8 * 256];
@@ -32,7 +32,15 @@ void main() {
                 uint shift = pc.lo + 8u * p;
                 uint bits = min(8u, pc.hi - shift);
                 uint d = uint(key >> shift) & ((1u << bits) - 1u);
-                atomicAdd(s_hist[p * 256u + d], 1u);
+                // A digit the whole subgroup shares (constant or sorted keys) would
+                // serialize its lanes' adds on one shared word: one add of the count
+                // instead. Off where votes are lane loops (lavapipe's 8 lanes).
+                if (pc.aggregate != 0u && subgroupAllEqual(d)) {
+                    uint c = subgroupBallotBitCount(subgroupBallot(true));
+                    if (subgroupElect()) atomicAdd(s_hist[p * 256u + d], c);
+                } else {
+                    atomicAdd(s_hist[p * 256u + d], 1u);
+                }
             }
         }
     }

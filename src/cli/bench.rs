@@ -2,7 +2,6 @@
 //! baseline measured in the same process.
 
 use std::collections::BTreeMap;
-use std::ops::Range;
 use std::time::Instant;
 
 use anyhow::bail;
@@ -18,26 +17,7 @@ use super::bench_report::{
 #[derive(Subcommand)]
 pub enum BenchCmd {
     /// Onesweep radix sort of u64 keys + u32 values; every run is verified.
-    Sort {
-        /// Number of key/value pairs.
-        #[arg(long, default_value_t = 1 << 20)]
-        n: u32,
-        /// Key bits to sort, LO..HI.
-        #[arg(long, default_value = "0..64", value_parser = parse_bits)]
-        bits: Range<u32>,
-        /// Timed runs (the median is reported; at least 5).
-        #[arg(long, default_value_t = 7)]
-        runs: u32,
-        /// Untimed warm-up runs.
-        #[arg(long, default_value_t = 2)]
-        warmup: u32,
-        /// Seed of the random keys.
-        #[arg(long, default_value_t = 1)]
-        seed: u64,
-        /// Print one JSON object instead of a table.
-        #[arg(long)]
-        json: bool,
-    },
+    Sort(super::bench_sort::SortArgs),
     /// Forward rendering of a model over the views of a dataset split.
     Render {
         /// A .safetensors checkpoint, or a run directory holding model.safetensors.
@@ -150,16 +130,6 @@ pub enum BenchCmd {
     },
 }
 
-fn parse_bits(s: &str) -> Result<Range<u32>, String> {
-    let (a, b) = s.split_once("..").ok_or("expected LO..HI, e.g. 0..64")?;
-    let lo: u32 = a.trim().parse().map_err(|_| format!("bad LO `{a}`"))?;
-    let hi: u32 = b.trim().parse().map_err(|_| format!("bad HI `{b}`"))?;
-    if lo >= hi || hi > 64 {
-        return Err(format!("need 0 <= LO < HI <= 64, got {lo}..{hi}"));
-    }
-    Ok(lo..hi)
-}
-
 pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
     match cmd {
         BenchCmd::Render {
@@ -244,22 +214,7 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             },
         )
         .map(|_| ()),
-        BenchCmd::Sort {
-            n,
-            bits,
-            runs,
-            warmup,
-            seed,
-            json,
-        } => super::bench_sort::bench_sort(ctx, n, bits, runs, warmup, seed, json),
-    }
-}
-
-pub(super) fn stage_order(name: &str) -> (u32, String) {
-    match name {
-        "sort.setup" => (0, String::new()),
-        "sort.histogram" => (1, String::new()),
-        _ => (2, format!("{:>8}", name)),
+        BenchCmd::Sort(args) => super::bench_sort::bench_sort(ctx, &args),
     }
 }
 

@@ -9,21 +9,82 @@ use anyhow::{bail, Context as _};
 use rand::{RngCore, SeedableRng};
 use svraster::eval::median;
 use svraster::gpu::{recorder, Context, Timestamps};
-use svraster::sort::{passes_for, Count, RadixSort, SortScratch};
+use svraster::sort::{passes_for, Count, RadixSort, SortPass, SortScratch};
 
-use super::bench::stage_order;
+/// `svraster bench sort` options.
+#[derive(clap::Args)]
+pub struct SortArgs {
+    /// Number of key/value pairs.
+    #[arg(long, default_value_t = 1 << 20)]
+    n: u32,
+    /// Key bits to sort, LO..HI.
+    #[arg(long, default_value = "0..64", value_parser = parse_bits)]
+    bits: Range<u32>,
+    /// Bits of the random keys that vary, LO..HI; the others are the same in every key,
+    /// so the passes whose digit lies outside are skipped (see --all-passes).
+    #[arg(long, default_value = "0..64", value_parser = parse_bits)]
+    vary: Range<u32>,
+    /// Run every pass, also those whose digit is the same in every key.
+    #[arg(long)]
+    all_passes: bool,
+    /// Pass kernel: auto (the device's), direct (lavapipe's), c128 or c256 (coalesced
+    /// writes through shared memory, for GPUs).
+    #[arg(long, default_value = "auto")]
+    pass: String,
+    /// Timed runs (the median is reported; at least 5).
+    #[arg(long, default_value_t = 7)]
+    runs: u32,
+    /// Untimed warm-up runs.
+    #[arg(long, default_value_t = 2)]
+    warmup: u32,
+    /// Seed of the random keys.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Print one JSON object instead of a table.
+    #[arg(long)]
+    json: bool,
+}
+
+fn parse_bits(s: &str) -> Result<Range<u32>, String> {
+    let (a, b) = s.split_once("..").ok_or("expected LO..HI, e.g. 0..64")?;
+    let lo: u32 = a.trim().parse().map_err(|_| format!("bad LO `{a}`"))?;
+    let hi: u32 = b.trim().parse().map_err(|_| format!("bad HI `{b}`"))?;
+    if lo >= hi || hi > 64 {
+        return Err(format!("need 0 <= LO < HI <= 64, got {lo}..{hi}"));
+    }
+    Ok(lo..hi)
+}
+
+fn stage_order(name: &str) -> (u32, String) {
+    match name {
+        "sort.setup" => (0, String::new()),
+        "sort.histogram" => (1, String::new()),
+        "sort.copy" => (3, String::new()),
+        _ => (2, format!("{:>8}", name)),
+    }
+}
 
 #[derive(serde::Serialize)]
 struct SortReport {
     device: String,
     n: u32,
     bits: String,
+    vary: String,
+    /// The pass kernel (`SortPass::name`).
+    pass_kernel: &'static str,
     passes: u32,
+    /// Bit p set: pass p was skipped (its digit is the same in every key).
+    skipped_passes: u32,
     runs: u32,
     median_ms: f64,
     mkeys_per_s: f64,
     wall_median_ms: f64,
     stages_median_ms: BTreeMap<String, f64>,
+    /// Bytes a pass reads and writes: n × (8-byte key + 4-byte value) × 2.
+    bytes_per_pass: u64,
+    /// bytes_per_pass / median time, per pass that ran (GB/s = 1e9 bytes/s); the
+    /// histogram reads n keys once.
+    stages_gb_per_s: BTreeMap<String, f64>,
     verified: bool,
     failed_runs: u32,
     cpu_median_ms: f64,
@@ -31,15 +92,23 @@ struct SortReport {
     speedup_vs_cpu: f64,
 }
 
-pub(super) fn bench_sort(
-    ctx: &Context,
-    n: u32,
-    bits: Range<u32>,
-    runs: u32,
-    warmup: u32,
-    seed: u64,
-    json: bool,
-) -> anyhow::Result<()> {
+pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
+    let SortArgs {
+        n,
+        ref bits,
+        ref vary,
+        all_passes,
+        ref pass,
+        runs,
+        warmup,
+        seed,
+        json,
+    } = *args;
+    let bits = bits.clone();
+    let pass = match pass.as_str() {
+        "auto" => SortPass::for_device(ctx.info()),
+        p => p.parse::<SortPass>().map_err(anyhow::Error::msg)?,
+    };
     if runs < 5 {
         bail!("--runs must be at least 5 (medians of fewer runs are noise on a shared machine)");
     }
@@ -75,7 +144,13 @@ pub(super) fn bench_sort(
     }
     drop(probe);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
-    keys.extend((0..n).map(|_| rng.next_u64()));
+    let vary_mask = if vary.end - vary.start == 64 {
+        u64::MAX
+    } else {
+        ((1u64 << (vary.end - vary.start)) - 1) << vary.start
+    };
+    let fixed = rng.next_u64() & !vary_mask;
+    keys.extend((0..n).map(|_| fixed | (rng.next_u64() & vary_mask)));
     values.extend(0..n);
     let mask = if bits.end - bits.start == 64 {
         u64::MAX
@@ -102,12 +177,13 @@ pub(super) fn bench_sort(
     expect.sort_by_key(|&(k, _)| (k >> lo) & mask);
     let (ek, ev): (Vec<u64>, Vec<u32>) = expect.into_iter().unzip();
 
-    let sorter = RadixSort::new(ctx, n).context("creating the radix sort")?;
+    let mut sorter = RadixSort::with_pass(ctx, n, pass).context("creating the radix sort")?;
+    sorter.set_skip_constant(!all_passes);
     let scratch = SortScratch::new(ctx, n)?;
     let src_k = ctx.buffer_from("bench.keys.src", &keys)?;
     let src_v = ctx.buffer_from("bench.values.src", &values)?;
     let passes = passes_for(&bits);
-    let mut ts = Timestamps::new(ctx, 4 + passes)?;
+    let mut ts = Timestamps::new(ctx, 5 + passes)?;
     let mut gpu_ms = Vec::new();
     let mut wall_ms = Vec::new();
     let mut stages: BTreeMap<String, Vec<f64>> = BTreeMap::new();
@@ -153,16 +229,42 @@ pub(super) fn bench_sort(
     }
     let med = median(&gpu_ms);
     let cpu = median(&cpu_ms);
+    let skipped = sorter.last_skipped()?;
+    let stages_median_ms: BTreeMap<String, f64> =
+        stages.iter().map(|(k, v)| (k.clone(), median(v))).collect();
+    let bytes_per_pass = u64::from(n) * 12 * 2;
+    let stages_gb_per_s = stages_median_ms
+        .iter()
+        .filter_map(|(k, &ms)| {
+            let bytes = if k == "sort.histogram" {
+                u64::from(n) * 8
+            } else if let Some(p) = k.strip_prefix("sort.pass") {
+                let p: u32 = p.parse().ok()?;
+                if skipped & (1 << p) != 0 {
+                    return None;
+                }
+                bytes_per_pass
+            } else {
+                return None;
+            };
+            Some((k.clone(), bytes as f64 / (ms * 1e6)))
+        })
+        .collect();
     let report = SortReport {
         device: ctx.info().name.clone(),
         n,
         bits: format!("{}..{}", bits.start, bits.end),
+        vary: format!("{}..{}", vary.start, vary.end),
+        pass_kernel: pass.name(),
         passes,
+        skipped_passes: skipped,
         runs,
         median_ms: med,
         mkeys_per_s: n as f64 / med / 1e3,
         wall_median_ms: median(&wall_ms),
-        stages_median_ms: stages.iter().map(|(k, v)| (k.clone(), median(v))).collect(),
+        stages_median_ms,
+        bytes_per_pass,
+        stages_gb_per_s,
         verified: failed == 0,
         failed_runs: failed,
         cpu_median_ms: cpu,
@@ -173,14 +275,24 @@ pub(super) fn bench_sort(
         println!("{}", serde_json::to_string(&report)?);
     } else {
         println!(
-            "sort of {} u64 keys + u32 values, bits {} ({} passes) on {}",
-            n, report.bits, passes, report.device
+            "sort of {} u64 keys + u32 values, bits {} ({} passes, {} skipped; keys vary in \
+             bits {}), pass kernel {} on {}",
+            n,
+            report.bits,
+            passes,
+            skipped.count_ones(),
+            report.vary,
+            pass.name(),
+            report.device
         );
         println!("  GPU   median {:9.2} ms  {:8.2} Mkeys/s  (timestamps; wall {:.2} ms; {} runs after {} warm-up)", med, report.mkeys_per_s, report.wall_median_ms, runs, warmup);
         let mut names: Vec<_> = report.stages_median_ms.iter().collect();
         names.sort_by_key(|(k, _)| stage_order(k));
         for (k, v) in names {
-            println!("    {k:<16} {v:9.2} ms");
+            match report.stages_gb_per_s.get(k) {
+                Some(g) => println!("    {k:<16} {v:9.2} ms  {g:7.2} GB/s"),
+                None => println!("    {k:<16} {v:9.2} ms"),
+            }
         }
         println!(
             "  CPU   median {:9.2} ms  {:8.2} Mkeys/s  (Rust sort_unstable, 1 thread)",

@@ -5,8 +5,16 @@
 //! algorithm.
 //!
 //! Per sort: `setup` (count, dispatch arguments, epoch) → `histogram` (all digits at
-//! once) → `hist_scan` (global digit offsets) → one `onesweep` pass per 8-bit digit,
-//! ping-ponging between the caller's primary and alternate buffers.
+//! once) → `hist_scan` (global digit offsets; a digit that is the same for every key
+//! skips its pass) → one `onesweep` pass per 8-bit digit, ping-ponging between the
+//! caller's primary and alternate buffers → a copy when an odd number of passes was
+//! skipped, so the result is where the recorded passes say.
+//!
+//! Two pass kernels ([`SortPass`]): `glsl/lib/onesweep.glsl` scatters each key straight
+//! to its destination (the fastest on lavapipe, where a write is a CPU store), and
+//! `glsl/lib/onesweep_coalesced.glsl` stages the tile in shared memory in sorted order
+//! and writes runs (what a GPU's memory system needs). [`SortPass::for_device`] picks
+//! from the device's type, subgroup size and shared memory.
 
 use std::ops::Range;
 
@@ -17,14 +25,17 @@ use crate::error::{Error, Result};
 use crate::gpu::{glsl, kernels, recorder, Buffer, Context, Kernel, Memory, Timestamps};
 use crate::push_constants;
 
-/// Elements per onesweep tile (WG × KPT in onesweep.glsl).
+/// Elements per tile of the direct pass (WG × KPT in onesweep.glsl).
 pub const SORT_TILE: u32 = glsl::WG * glsl::KPT;
+/// Keys per invocation of the coalesced pass (KPT in build.rs's variant table).
+const COALESCED_KPT: u32 = 15;
+/// The smallest tile of any pass (sizes the look-back status words).
+const MIN_TILE: u32 = 128 * COALESCED_KPT;
 /// Keys per histogram workgroup (HIST_WG × HIST_KPT in sort_histogram.glsl).
 const HIST_CHUNK: u32 = glsl::HIST_WG * glsl::HIST_KPT;
 // Words of the state buffer (ST_* in pass_state.glsl).
-/// Words of the state buffer (ST_WORDS in pass_state.glsl: 8 passes × 256 digits after
-/// the header).
-pub(crate) const STATE_WORDS: usize = glsl::ST_HIST as usize + 8 * 256;
+/// Words of the state buffer (ST_WORDS in pass_state.glsl).
+pub(crate) const STATE_WORDS: usize = glsl::ST_WORDS as usize;
 pub(crate) const ST_N: usize = glsl::ST_N as usize;
 pub(crate) const ST_REQUESTED: usize = glsl::ST_REQUESTED as usize;
 pub(crate) const ST_ERRORS: usize = glsl::ST_ERRORS as usize;
@@ -32,6 +43,9 @@ pub(crate) const ST_TOTAL: usize = glsl::ST_TOTAL as usize;
 /// Byte offsets of the indirect dispatch arguments in the state buffer.
 pub(crate) const ST_ARGS_TILES: u64 = glsl::ST_ARGS_TILES as u64 * 4;
 const ST_ARGS_CHUNKS: u64 = glsl::ST_ARGS_CHUNKS as u64 * 4;
+const ST_PASS_ARGS: u64 = glsl::ST_PASS_ARGS as u64 * 4;
+const ST_ARGS_COPY: u64 = glsl::ST_ARGS_COPY as u64 * 4;
+const ST_SKIPPED: usize = glsl::ST_SKIPPED as usize;
 /// Error bits of the state buffer (ERR_* in pass_state.glsl).
 pub use crate::gpu::glsl::{ERR_LOOKBACK, ERR_OVERFLOW};
 
@@ -57,7 +71,7 @@ struct HistPush {
     lo: u32,
     hi: u32,
     passes: u32,
-    pad: u32,
+    aggregate: u32,
 }
 push_constants!(HistPush, kernels::SORT_HISTOGRAM);
 
@@ -66,9 +80,22 @@ push_constants!(HistPush, kernels::SORT_HISTOGRAM);
 struct HistScanPush {
     state: u64,
     passes: u32,
-    pad: u32,
+    skip_constant: u32,
 }
 push_constants!(HistScanPush, kernels::SORT_HIST_SCAN);
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct CopyPush {
+    keys_src: u64,
+    vals_src: u64,
+    keys_dst: u64,
+    vals_dst: u64,
+    state: u64,
+    key_words: u32,
+    tile_size: u32,
+}
+push_constants!(CopyPush, kernels::SORT_COPY);
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -87,6 +114,121 @@ struct PassPush {
     pad: u32,
 }
 push_constants!(PassPush, kernels::SORT_ONESWEEP);
+push_constants!(PassPush, kernels::SORT_ONESWEEP_C128);
+push_constants!(PassPush, kernels::SORT_ONESWEEP_C256);
+
+/// Which kernel runs the digit passes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum SortPass {
+    /// `onesweep.glsl`: 128 invocations × 16 keys, each key written straight to its
+    /// destination. The fastest on lavapipe.
+    Direct,
+    /// `onesweep_coalesced.glsl` with 128 invocations × 15 keys: any subgroup size.
+    Coalesced128,
+    /// `onesweep_coalesced.glsl` with 256 invocations × 15 keys: subgroups of ≥ 16
+    /// lanes and ~34 KiB of shared memory.
+    Coalesced256,
+}
+
+impl SortPass {
+    /// Every pass kernel, for tests and `bench sort --pass`.
+    pub const ALL: [SortPass; 3] = [
+        SortPass::Direct,
+        SortPass::Coalesced128,
+        SortPass::Coalesced256,
+    ];
+
+    /// The pass for a device: the direct one on CPU devices (a write there is a store
+    /// to the CPU's caches; staging the tile only adds work), else the widest coalesced
+    /// one the subgroup size and shared memory allow.
+    pub fn for_device(info: &crate::gpu::DeviceInfo) -> SortPass {
+        if info.is_cpu {
+            SortPass::Direct
+        } else if SortPass::Coalesced256.supported(info) {
+            SortPass::Coalesced256
+        } else if SortPass::Coalesced128.supported(info) {
+            SortPass::Coalesced128
+        } else {
+            SortPass::Direct
+        }
+    }
+
+    /// Name in reports and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            SortPass::Direct => "direct",
+            SortPass::Coalesced128 => "c128",
+            SortPass::Coalesced256 => "c256",
+        }
+    }
+
+    fn invocations(self) -> u32 {
+        match self {
+            SortPass::Direct | SortPass::Coalesced128 => 128,
+            SortPass::Coalesced256 => 256,
+        }
+    }
+
+    /// Keys per workgroup (tile).
+    pub fn tile(self) -> u32 {
+        match self {
+            SortPass::Direct => SORT_TILE,
+            _ => self.invocations() * COALESCED_KPT,
+        }
+    }
+
+    /// Smallest subgroup size the kernel supports (its shared histogram rows).
+    fn min_subgroup(self) -> u32 {
+        match self {
+            SortPass::Direct | SortPass::Coalesced128 => 8,
+            SortPass::Coalesced256 => 16,
+        }
+    }
+
+    /// Bytes of shared memory the kernel declares (mirrors the arrays of its GLSL).
+    pub fn shared_bytes(self) -> u32 {
+        let wg = self.invocations();
+        let max_sg = wg / self.min_subgroup();
+        let words = match self {
+            // s_tile, s_rows, s_base, s_fallback, lb_vote
+            SortPass::Direct => 1 + max_sg * 256 + 2 * 256 + 1,
+            // s_tile, s_mem, s_local, s_base, s_part, s_jmax, lb_vote
+            _ => 1 + (max_sg * 256).max(2 * self.tile()) + 2 * 256 + max_sg + 2,
+        };
+        words * 4
+    }
+
+    /// Whether the device can run it.
+    pub fn supported(self, info: &crate::gpu::DeviceInfo) -> bool {
+        info.subgroup_size >= self.min_subgroup()
+            && self.shared_bytes() <= info.max_compute_shared_memory_size
+            && self.invocations() <= info.max_compute_work_group_invocations
+    }
+
+    fn kernels(self) -> [&'static crate::gpu::KernelSource; 2] {
+        match self {
+            SortPass::Direct => [&kernels::SORT_ONESWEEP, &kernels::SORT_ONESWEEP_K32],
+            SortPass::Coalesced128 => [
+                &kernels::SORT_ONESWEEP_C128,
+                &kernels::SORT_ONESWEEP_C128_K32,
+            ],
+            SortPass::Coalesced256 => [
+                &kernels::SORT_ONESWEEP_C256,
+                &kernels::SORT_ONESWEEP_C256_K32,
+            ],
+        }
+    }
+}
+
+impl std::str::FromStr for SortPass {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        SortPass::ALL
+            .into_iter()
+            .find(|p| p.name() == s)
+            .ok_or_else(|| format!("unknown sort pass `{s}`: one of direct, c128, c256"))
+    }
+}
 
 /// Where the element count of a run comes from.
 #[derive(Clone, Copy)]
@@ -221,39 +363,88 @@ pub struct RadixSort {
     hist: Kernel,
     hist32: Kernel,
     hist_scan: Kernel,
+    copy: Kernel,
+    kind: SortPass,
     pass: Kernel,
     pass32: Kernel,
     generic_rank: bool,
+    skip_constant: bool,
+    spin_limit: Option<u32>,
 }
 
 impl RadixSort {
-    /// Largest capacity: look-back values and indices are 32-bit.
-    pub const MAX_CAPACITY: u32 = u32::MAX - SORT_TILE;
+    /// Largest capacity: look-back values and indices are 32-bit, and a count rounded
+    /// up to whole tiles of any pass (≤ 3 840 keys) must fit too.
+    pub const MAX_CAPACITY: u32 = u32::MAX - 4096;
 
+    /// The sort with the device's pass kernel ([`SortPass::for_device`]).
     pub fn new(ctx: &Context, capacity: u32) -> Result<Self> {
+        Self::with_pass(ctx, capacity, SortPass::for_device(ctx.info()))
+    }
+
+    /// The sort with a chosen pass kernel (tests, `bench sort --pass`).
+    pub fn with_pass(ctx: &Context, capacity: u32, kind: SortPass) -> Result<Self> {
         if capacity > Self::MAX_CAPACITY {
             return Err(Error::Capacity(format!(
                 "sort capacity {capacity} exceeds the maximum {}",
                 Self::MAX_CAPACITY
             )));
         }
-        let tiles = capacity.div_ceil(SORT_TILE).max(1) as u64;
+        if !kind.supported(ctx.info()) {
+            let i = ctx.info();
+            return Err(Error::Invalid(format!(
+                "sort pass `{}` needs subgroups of ≥ {} lanes and {} bytes of shared memory;                  {} has {} lanes and {} bytes",
+                kind.name(),
+                kind.min_subgroup(),
+                kind.shared_bytes(),
+                i.name,
+                i.subgroup_size,
+                i.max_compute_shared_memory_size
+            )));
+        }
+        let tiles = capacity.div_ceil(MIN_TILE).max(1) as u64;
+        let [pass, pass32] = kind.kernels();
         Ok(RadixSort {
             ctx: ctx.clone(),
             run: RunState::new(ctx, "radix-sort", capacity, tiles * 256)?,
             hist: Kernel::new(ctx, &kernels::SORT_HISTOGRAM)?,
             hist32: Kernel::new(ctx, &kernels::SORT_HISTOGRAM_K32)?,
             hist_scan: Kernel::new(ctx, &kernels::SORT_HIST_SCAN)?,
-            pass: Kernel::new(ctx, &kernels::SORT_ONESWEEP)?,
-            pass32: Kernel::new(ctx, &kernels::SORT_ONESWEEP_K32)?,
+            copy: Kernel::new(ctx, &kernels::SORT_COPY)?,
+            kind,
+            pass: Kernel::new(ctx, pass)?,
+            pass32: Kernel::new(ctx, pass32)?,
             generic_rank: false,
+            skip_constant: true,
+            spin_limit: None,
         })
     }
 
+    /// Look-back polls of a predecessor tile before its digits are recounted (default:
+    /// [`DeviceInfo::lookback_spin_limit`](crate::gpu::DeviceInfo::lookback_spin_limit)).
+    /// 0 recounts every predecessor that has not published yet, so tests reach the
+    /// fallback.
+    #[doc(hidden)]
+    pub fn set_spin_limit(&mut self, polls: Option<u32>) {
+        self.spin_limit = polls;
+    }
+
+    /// The pass kernel this sort runs.
+    pub fn pass(&self) -> SortPass {
+        self.kind
+    }
+
+    /// With `on` (the default), a pass whose digit is the same for every key is skipped
+    /// on the GPU; off, every pass runs (tests; the full cost in benchmarks).
+    pub fn set_skip_constant(&mut self, on: bool) {
+        self.skip_constant = on;
+    }
+
     /// With `on`, the passes rank keys with one ballot per digit bit on every subgroup
-    /// size instead of the 8-lane shuffle comparison (`glsl/lib/onesweep.glsl`), so the
-    /// path that real GPUs (32 or 64 lanes) take is exercised on lavapipe. The result is
-    /// the same; for tests.
+    /// size instead of the 8-lane shuffle comparison (`glsl/lib/onesweep.glsl`), and the
+    /// histogram adds a digit a whole subgroup shares once, so the paths that real GPUs
+    /// (32 or 64 lanes) take are exercised on lavapipe. The result is the same; for
+    /// tests.
     #[doc(hidden)]
     pub fn set_generic_rank(&mut self, on: bool) {
         self.generic_rank = on;
@@ -322,8 +513,9 @@ impl RadixSort {
             return Ok(Sorted::Primary);
         }
         let ctx = &self.ctx;
+        let tile = self.kind.tile();
         self.run
-            .record_setup(ctx, cmd, count, SORT_TILE, HIST_CHUNK, passes * 256);
+            .record_setup(ctx, cmd, count, tile, HIST_CHUNK, passes * 256);
         if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "sort.setup");
         }
@@ -340,7 +532,7 @@ impl RadixSort {
                 lo: bits.start,
                 hi: bits.end,
                 passes,
-                pad: 0,
+                aggregate: (ctx.info().subgroup_size > 8 || self.generic_rank) as u32,
             },
             self.run.state.raw(),
             ST_ARGS_CHUNKS,
@@ -351,7 +543,7 @@ impl RadixSort {
             &HistScanPush {
                 state,
                 passes,
-                pad: 0,
+                skip_constant: self.skip_constant as u32,
             },
             [1, 1, 1],
         );
@@ -359,7 +551,9 @@ impl RadixSort {
         if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "sort.histogram");
         }
-        let spin = ctx.info().lookback_spin_limit();
+        let spin = self
+            .spin_limit
+            .unwrap_or_else(|| ctx.info().lookback_spin_limit());
         for p in 0..passes {
             let shift = bits.start + 8 * p;
             let (ki, vi, ko, vo) = if p % 2 == 0 {
@@ -381,17 +575,49 @@ impl RadixSort {
                 generic_rank: self.generic_rank as u32,
                 pad: 0,
             };
-            pass.dispatch_indirect(cmd, &push, self.run.state.raw(), ST_ARGS_TILES);
+            pass.dispatch_indirect(
+                cmd,
+                &push,
+                self.run.state.raw(),
+                ST_PASS_ARGS + 12 * p as u64,
+            );
             recorder::barrier(ctx, cmd);
             if let Some(t) = ts.as_deref_mut() {
                 t.mark(cmd, &format!("sort.pass{p}"));
             }
         }
-        Ok(if passes.is_multiple_of(2) {
-            Sorted::Primary
+        // An odd number of skipped passes left the result in the other pair: move it
+        // (0 workgroups otherwise).
+        let (result, other) = if passes.is_multiple_of(2) {
+            (
+                (bufs.keys, bufs.values, Sorted::Primary),
+                (bufs.keys_alt, bufs.values_alt),
+            )
         } else {
-            Sorted::Alternate
-        })
+            (
+                (bufs.keys_alt, bufs.values_alt, Sorted::Alternate),
+                (bufs.keys, bufs.values),
+            )
+        };
+        self.copy.dispatch_indirect(
+            cmd,
+            &CopyPush {
+                keys_src: other.0.address(),
+                vals_src: other.1.address(),
+                keys_dst: result.0.address(),
+                vals_dst: result.1.address(),
+                state,
+                key_words: (kw / 4) as u32,
+                tile_size: tile,
+            },
+            self.run.state.raw(),
+            ST_ARGS_COPY,
+        );
+        recorder::barrier(ctx, cmd);
+        if let Some(t) = ts {
+            t.mark(cmd, "sort.copy");
+        }
+        Ok(result.2)
     }
 
     /// The run-state buffer (counts, dispatch arguments, sticky errors at word
@@ -409,6 +635,14 @@ impl RadixSort {
     pub fn last_count(&self) -> Result<(u32, u32)> {
         let s = self.run.read(&self.ctx)?;
         Ok((s[ST_N], s[ST_REQUESTED]))
+    }
+
+    /// Bit p set: pass p of the last run was skipped (its digit was the same for every
+    /// key). Waits for the device.
+    pub fn last_skipped(&self) -> Result<u32> {
+        Ok(self
+            .ctx
+            .download::<u32>(&self.run.state, ST_SKIPPED as u64 * 4, 1)?[0])
     }
 
     /// Convenience: uploads, sorts by `bits`, waits and returns the sorted pairs.

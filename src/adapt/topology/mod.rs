@@ -296,8 +296,7 @@ impl Topology {
         let cand_n = u32::try_from(new_n * 8)
             .ok()
             .filter(|&c| {
-                c <= RadixSort::MAX_CAPACITY
-                    && c <= u32::MAX - SCAN_TILE
+                c <= RadixSort::MAX_CAPACITY.min(u32::MAX - SCAN_TILE)
                     && u64::from(c) * u64::from(planes) <= u64::from(u32::MAX)
                     && (new_n as u64) * (nc.max(3) as u64) <= u64::from(u32::MAX)
             })

@@ -1,0 +1,318 @@
+// One digit pass of the onesweep radix sort built for GPUs (32- and 64-lane subgroups):
+// the keys of a tile are ranked with warp-level multisplit, staged in shared memory in
+// their sorted order, and written out in runs, so that consecutive invocations write
+// consecutive addresses of one digit's bucket (coalesced) instead of one scattered
+// 12-byte write per key. Same result, state and look-back words as onesweep.glsl (the
+// lavapipe pass), between which src/sort chooses from the device's subgroup size and
+// shared memory.
+//
+// Where the choices come from:
+// - Adinets & Merrill, "Onesweep" (2022) and CUB's DeviceRadixSort onesweep: one pass per
+//   8-bit digit after one histogram of every digit, tiles claimed in the order workgroups
+//   start (an atomic counter), decoupled look-back over (flag, value) words.
+// - b0nes164/GPUSorting (OneSweep.cu, DigitBinningPassPairs): warp-level multisplit (one
+//   ballot per digit bit, the lowest matching lane adds the run's count to its
+//   subgroup's histogram row and shuffles the old value to the others), per-subgroup
+//   histogram rows scanned down the columns, keys staged in shared memory at their
+//   tile-local sorted position before the look-back (so its latency overlaps that work),
+//   then written out as runs; 15 keys per invocation.
+// - Ours: 64-bit keys staged as two words and values staged in a second round (one
+//   32 KiB-class array instead of 45 KiB); the look-back has the bounded spin and the
+//   recount fallback of onesweep.glsl (no invocation waits on another workgroup, so it
+//   needs no forward-progress guarantee), but every digit walks back on its own and the
+//   workgroup votes only once per round of stalls instead of once per predecessor tile.
+//
+// Defines (build.rs variants): WG invocations, KPT keys per invocation, MIN_SG the
+// smallest subgroup size the variant supports (its shared histogram rows: WG / MIN_SG).
+#include "common.glsl"
+#extension GL_KHR_shader_subgroup_shuffle : require
+#extension GL_EXT_control_flow_attributes : require
+#include "pass_state.glsl"
+#include "lookback.glsl"
+#include "sort_key.glsl"
+
+#define TILE (WG * KPT)
+#define RADIX 256
+#define DPT (RADIX / WG)      // digits per invocation (WG <= 256)
+#define MAX_SG (WG / MIN_SG)  // subgroups per workgroup at most
+#define ROWS_WORDS (MAX_SG * RADIX)
+#define STAGE_WORDS (2 * TILE) // u64 keys as two words, or u32 keys then values
+#define MEM_WORDS (ROWS_WORDS > STAGE_WORDS ? ROWS_WORDS : STAGE_WORDS)
+layout(local_size_x = WG) in;
+
+layout(push_constant) uniform Push {
+    KeyBuf keys_in;
+    U32s vals_in;
+    KeyBuf keys_out;
+    U32s vals_out;
+    U32s state;
+    U64s status;      // [tiles][RADIX] look-back words
+    uint shift;       // first bit of this pass's digit
+    uint bits;        // digit width (1..8)
+    uint pass_index;  // 0..7
+    uint spin_limit;  // polls of a predecessor before the fallback
+    uint generic_rank; // 1: rank with ballots on any subgroup size (tests)
+    uint pad;
+} pc;
+
+shared uint s_tile;
+shared uint s_mem[MEM_WORDS];  // subgroup histogram rows, then the staged tile
+shared uint s_local[RADIX];    // tile-local start of each digit
+shared uint s_base[RADIX];     // fallback counts during look-back; then global base - local start
+shared uint s_part[MAX_SG];    // subgroup sums of the digit scan
+shared uint s_jmax;            // look-back: the nearest tile a digit stalled on
+
+uint popcount4(uvec4 m) {
+    return bitCount(m.x) + bitCount(m.y) + bitCount(m.z) + bitCount(m.w);
+}
+uint lsb4(uvec4 m) {
+    return m.x != 0u ? findLSB(m.x)
+         : m.y != 0u ? 32u + findLSB(m.y)
+         : m.z != 0u ? 64u + findLSB(m.z)
+                     : 96u + findLSB(m.w);
+}
+
+void main() {
+    uint t = gl_LocalInvocationID.x;
+    if (t == 0u) s_tile = atomicAdd(pc.state.v[ST_TILE_CTR + pc.pass_index], 1u);
+    for (uint i = t; i < ROWS_WORDS; i += WG) s_mem[i] = 0u;
+    barrier();
+    uint tile = s_tile;
+    uint n = pc.state.v[ST_N];
+    uint ntiles = (n + TILE - 1u) / TILE;
+    if (tile >= ntiles) return; // uniform: every invocation read the same s_tile
+    uint tile_n = min(TILE, n - tile * TILE);
+    // A skipped pass before this one (constant digit, sort/hist_scan.comp) swaps the
+    // ping-pong direction of every later pass.
+    bool flip = pc.state.v[ST_FLIP + pc.pass_index] != 0u;
+    KeyBuf keys_in = flip ? pc.keys_out : pc.keys_in;
+    U32s vals_in = flip ? pc.vals_out : pc.vals_in;
+    KeyBuf keys_out = flip ? pc.keys_in : pc.keys_out;
+    U32s vals_out = flip ? pc.vals_in : pc.vals_out;
+
+    uint digit_mask = (1u << pc.bits) - 1u;
+    uint sg = gl_SubgroupID;
+    uint lane = gl_SubgroupInvocationID;
+    uint sgsize = gl_SubgroupSize;
+    uvec4 lt = gl_SubgroupLtMask;
+    uint chunk = tile * TILE + sg * (sgsize * KPT);
+
+    // 1. Load (coalesced: each subgroup owns a contiguous chunk, round-major), then rank
+    // within the subgroup: loc = keys of the same digit earlier in the subgroup's chunk.
+    KeyT k[KPT];
+    uint v[KPT];
+    uint loc[KPT];
+    [[unroll]] for (uint r = 0u; r < KPT; r++) {
+        uint idx = chunk + r * sgsize + lane;
+        bool valid = idx < n;
+        k[r] = valid ? keys_in.v[idx] : KeyT(0);
+        v[r] = valid ? vals_in.v[idx] : 0u;
+    }
+    for (uint r = 0u; r < KPT; r++) {
+        bool valid = chunk + r * sgsize + lane < n;
+        uint d = uint(k[r] >> pc.shift) & digit_mask;
+        uint below, cnt, leader;
+        if (sgsize == 8u && pc.generic_rank == 0u) {
+            // 8 lanes: compare digits through shuffles (8 ballots are lane loops on
+            // lavapipe). An invalid lane carries a digit no valid lane has.
+            uint dd = valid ? d : 0xffffffffu;
+            uint match = 0u;
+            [[unroll]] for (uint i = 0u; i < 8u; i++)
+                match |= subgroupShuffle(dd, i) == dd ? (1u << i) : 0u;
+            below = bitCount(match & lt.x);
+            cnt = bitCount(match);
+            leader = findLSB(match);
+        } else if (sgsize <= 32u) {
+            uint match = subgroupBallot(valid).x;
+            for (uint b = 0u; b < pc.bits; b++) {
+                bool set = ((d >> b) & 1u) != 0u;
+                uint bal = subgroupBallot(set).x;
+                match &= set ? bal : ~bal;
+            }
+            below = bitCount(match & lt.x);
+            cnt = bitCount(match);
+            leader = valid ? findLSB(match) : lane;
+        } else {
+            uvec4 match = subgroupBallot(valid);
+            for (uint b = 0u; b < pc.bits; b++) {
+                bool set = ((d >> b) & 1u) != 0u;
+                uvec4 bal = subgroupBallot(set);
+                match &= set ? bal : ~bal;
+            }
+            below = popcount4(match & lt);
+            cnt = popcount4(match);
+            leader = valid ? lsb4(match) : lane;
+        }
+        // The lowest lane of each digit's run adds the run to the subgroup's row; the
+        // others get the old value from it. The next round's adds follow this round's:
+        // its shuffle waits for them.
+        uint pre = 0u;
+        if (valid && below == 0u) pre = atomicAdd(s_mem[sg * RADIX + d], cnt);
+        pre = subgroupShuffle(pre, leader);
+        loc[r] = pre + below;
+    }
+    barrier();
+
+    // 2. Down each digit's column: subgroup counts -> subgroup offsets; tile counts.
+    uint nsg = gl_NumSubgroups;
+    uint count[DPT];
+    [[unroll]] for (uint q = 0u; q < DPT; q++) {
+        uint d = t + q * WG;
+        uint run = 0u;
+        for (uint s = 0u; s < nsg; s++) {
+            uint c = s_mem[s * RADIX + d];
+            s_mem[s * RADIX + d] = run;
+            run += c;
+        }
+        count[q] = run;
+        s_local[d] = run;
+    }
+    // Publish the tile's counts at once: successors' look-back may stop here.
+    uint tag = pc.state.v[ST_EPOCH] + pc.pass_index;
+    uint status_base = tile * RADIX;
+    [[unroll]] for (uint q = 0u; q < DPT; q++) {
+        lb_store(pc.status, status_base + t + q * WG,
+                 lb_pack(tag, tile == 0u ? LB_INCLUSIVE : LB_AGGREGATE, count[q]));
+    }
+    barrier();
+
+    // 3. Exclusive scan of the tile's counts over the digits: each invocation takes DPT
+    // consecutive digits, subgroups scan, s_part carries the subgroup sums.
+    uint mine[DPT];
+    uint sum = 0u;
+    [[unroll]] for (uint q = 0u; q < DPT; q++) {
+        mine[q] = s_local[t * DPT + q];
+        sum += mine[q];
+    }
+    uint excl = subgroupExclusiveAdd(sum);
+    if (lane == sgsize - 1u) s_part[sg] = excl + sum;
+    barrier();
+    for (uint s = 0u; s < sg; s++) excl += s_part[s];
+    [[unroll]] for (uint q = 0u; q < DPT; q++) {
+        s_local[t * DPT + q] = excl;
+        excl += mine[q];
+    }
+    barrier();
+
+    // 4. Tile-local sorted position of each key; stage the keys there (two words per
+    // u64 key; u32 keys and their values in one round).
+    [[unroll]] for (uint r = 0u; r < KPT; r++) {
+        uint d = uint(k[r] >> pc.shift) & digit_mask;
+        loc[r] += s_mem[sg * RADIX + d] + s_local[d];
+    }
+    barrier();
+    [[unroll]] for (uint r = 0u; r < KPT; r++) {
+        if (chunk + r * sgsize + lane < n) {
+#ifdef KEY32
+            s_mem[loc[r]] = k[r];
+            s_mem[TILE + loc[r]] = v[r];
+#else
+            s_mem[2u * loc[r]] = uint(k[r]);
+            s_mem[2u * loc[r] + 1u] = uint(k[r] >> 32);
+#endif
+        }
+    }
+
+    // 5. Look-back: every digit walks back on its own. A predecessor that has not
+    // published after `spin_limit` polls stalls its digit; then the workgroup recounts
+    // the nearest stalled tile from its keys (the fallback: tile j < tile is full) and
+    // the digits stalled there go on. One workgroup vote per round of stalls.
+    uint before[DPT];
+    uint jj[DPT];
+    bool done[DPT];
+    [[unroll]] for (uint q = 0u; q < DPT; q++) {
+        before[q] = 0u;
+        jj[q] = tile - 1u;
+        done[q] = tile == 0u;
+    }
+    if (tile > 0u) {
+        for (;;) { // workgroup-uniform: exits depend on lb_workgroup_or results only
+            bool stalled = false;
+            [[unroll]] for (uint q = 0u; q < DPT; q++) {
+                uint d = t + q * WG;
+                while (!done[q]) {
+                    uint idx = jj[q] * RADIX + d;
+                    uint64_t w = lb_load(pc.status, idx);
+                    uint f = lb_flag(w, tag);
+                    for (uint s = 0u; f == 0u && s < pc.spin_limit; s++) {
+                        w = lb_load(pc.status, idx);
+                        f = lb_flag(w, tag);
+                    }
+                    if (f == 0u) {
+                        stalled = true;
+                        break;
+                    }
+                    before[q] += lb_value(w);
+                    if (f == LB_INCLUSIVE) {
+                        done[q] = true;
+                    } else if (jj[q] == 0u) {
+                        // Tile 0 publishes only inclusive words: a corrupted state.
+                        atomicOr(pc.state.v[ST_ERRORS], ERR_LOOKBACK);
+                        done[q] = true;
+                    } else {
+                        jj[q]--;
+                    }
+                }
+            }
+            if (t == 0u) s_jmax = 0u;
+            if (lb_workgroup_or(stalled ? 1u : 0u) == 0u) break;
+            [[unroll]] for (uint q = 0u; q < DPT; q++)
+                if (!done[q]) atomicMax(s_jmax, jj[q] + 1u);
+            for (uint i = t; i < RADIX; i += WG) s_base[i] = 0u;
+            barrier();
+            uint j = s_jmax - 1u;
+            for (uint r = 0u; r < KPT; r++) {
+                KeyT key = keys_in.v[j * TILE + r * WG + t];
+                atomicAdd(s_base[uint(key >> pc.shift) & digit_mask], 1u);
+            }
+            barrier();
+            [[unroll]] for (uint q = 0u; q < DPT; q++) {
+                if (!done[q] && jj[q] == j) {
+                    before[q] += s_base[t + q * WG];
+                    if (j == 0u) done[q] = true; // tile 0's count is its inclusive prefix
+                    else jj[q] = j - 1u;
+                }
+            }
+            barrier(); // s_base and s_jmax are reused by the next round
+        }
+        [[unroll]] for (uint q = 0u; q < DPT; q++) {
+            lb_store(pc.status, status_base + t + q * WG,
+                     lb_pack(tag, LB_INCLUSIVE, before[q] + count[q]));
+        }
+    }
+    uint hist_base = ST_HIST + pc.pass_index * RADIX;
+    [[unroll]] for (uint q = 0u; q < DPT; q++) {
+        uint d = t + q * WG;
+        s_base[d] = pc.state.v[hist_base + d] + before[q] - s_local[d];
+    }
+    barrier();
+
+    // 6. Write out in sorted order: slot i of the tile goes to base[digit] + i, so the
+    // invocations of a subgroup write runs of consecutive addresses.
+#ifdef KEY32
+    for (uint i = t; i < tile_n; i += WG) {
+        uint key = s_mem[i];
+        uint dst = s_base[(key >> pc.shift) & digit_mask] + i;
+        keys_out.v[dst] = key;
+        vals_out.v[dst] = s_mem[TILE + i];
+    }
+#else
+    uint dst[KPT];
+    [[unroll]] for (uint m = 0u; m < KPT; m++) {
+        uint i = t + m * WG;
+        if (i < tile_n) {
+            uint64_t key = uint64_t(s_mem[2u * i]) | (uint64_t(s_mem[2u * i + 1u]) << 32);
+            dst[m] = s_base[uint(key >> pc.shift) & digit_mask] + i;
+            keys_out.v[dst[m]] = key;
+        }
+    }
+    barrier();
+    [[unroll]] for (uint r = 0u; r < KPT; r++)
+        if (chunk + r * sgsize + lane < n) s_mem[loc[r]] = v[r];
+    barrier();
+    [[unroll]] for (uint m = 0u; m < KPT; m++) {
+        uint i = t + m * WG;
+        if (i < tile_n) vals_out.v[dst[m]] = s_mem[i];
+    }
+#endif
+}
