@@ -12,10 +12,10 @@ use svraster::gpu::{ContextOptions, Memory};
 use svraster::raster::host::{ColorFormat, ColorTarget, HostRenderer, HostTarget, HostView};
 use svraster::{Context, RenderOptions, SceneGpu};
 
-fn main() -> anyhow::Result<()> {
+fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().collect();
     let (Some(model), Some(out)) = (args.get(1), args.get(2)) else {
-        anyhow::bail!("usage: embed MODEL.safetensors OUT.png");
+        return Err("usage: embed MODEL.safetensors OUT.png".into());
     };
     // A host lends its device with Context::borrowed; here the engine makes its own.
     let ctx = Context::new(&ContextOptions {

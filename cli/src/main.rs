@@ -1,4 +1,5 @@
-//! clap commands.
+//! `svraster`: the command-line front end of the svraster library (see `svraster
+//! --help`): clap commands, progress bars, plots, signals.
 
 mod bench;
 mod bench_report;
@@ -565,4 +566,11 @@ fn run_downscale(model: &std::path::Path) -> f64 {
         }
     }
     d.unwrap_or(1.0)
+}
+
+fn main() {
+    if let Err(e) = run() {
+        eprintln!("error: {e:#}");
+        std::process::exit(1);
+    }
 }

@@ -1102,7 +1102,7 @@ fn python() -> &'static str {
 /// vertex property names.
 fn ply_info(path: &std::path::Path) -> (serde_json::Value, Vec<String>) {
     let py = Command::new(python())
-        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/tools/ply_read.py"))
+        .arg(concat!(env!("CARGO_MANIFEST_DIR"), "/../tools/ply_read.py"))
         .arg(path)
         .output()
         .expect("run python3 (tools/setup.sh installs python3-numpy)");
