@@ -30,6 +30,8 @@ fn main() {
          use crate::gpu::KernelSource;\n\n",
     );
     let mut all = Vec::new();
+    // Every kernel's push-constant block, for the `push_constants!` checks.
+    let mut pushes: Vec<PushBlock> = Vec::new();
     // Every buffer-reference block by name, with the first kernel that uses it; one name
     // must have one layout in every kernel.
     let mut blocks: BTreeMap<String, (Block, String)> = BTreeMap::new();
@@ -130,6 +132,12 @@ fn main() {
                     lz = refl.local_size[2],
                     ps = refl.push_size,
                 );
+                pushes.push(PushBlock {
+                    kernel: ident.clone(),
+                    path: display.clone(),
+                    size: refl.push_size,
+                    members: refl.push_members,
+                });
                 all.push(ident);
             }
             Err(e) => failures.push(e.to_string()),
@@ -154,6 +162,7 @@ fn main() {
             .collect::<Vec<_>>()
             .join(", ")
     );
+    module.push_str(&push_checks(&pushes));
     std::fs::write(out_dir.join("kernels.rs"), module).unwrap();
     std::fs::write(out_dir.join("layouts.rs"), layouts_module(&blocks)).unwrap();
     let headers: Vec<&PathBuf> = files
@@ -235,6 +244,8 @@ struct Reflection {
     /// a PhysicalStorageBuffer pointer; the one-member `U32s`-style array wrappers left
     /// out).
     blocks: Vec<Block>,
+    /// The push-constant block's members (name, byte offset), in declaration order.
+    push_members: Vec<(String, u32)>,
 }
 
 /// A block's std430 layout as glslang compiled it.
@@ -390,10 +401,26 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
         }
         go(id, &types, &constants, &offsets, &strides)
     };
-    let push_size = match push_var_type {
-        None => 0,
+    let (push_size, push_members) = match push_var_type {
+        None => (0, Vec::new()),
         Some(ptr) => match types.get(&ptr) {
-            Some(Ty::Pointer(StorageClass::PushConstant, pointee)) => size_of(*pointee)?,
+            Some(Ty::Pointer(StorageClass::PushConstant, pointee)) => {
+                let Some(Ty::Struct(ms)) = types.get(pointee) else {
+                    return Err("push-constant block is not a struct".into());
+                };
+                let members = (0..ms.len() as u32)
+                    .map(|k| {
+                        let n = member_names
+                            .get(&(*pointee, k))
+                            .ok_or_else(|| format!("push constant member {k} without a name"))?;
+                        let o = offsets
+                            .get(&(*pointee, k))
+                            .ok_or_else(|| format!("push constant {n}: no Offset"))?;
+                        Ok((n.clone(), *o))
+                    })
+                    .collect::<Result<Vec<_>, String>>()?;
+                (size_of(*pointee)?, members)
+            }
             _ => return Err("push-constant variable is not a pointer".into()),
         },
     };
@@ -433,7 +460,59 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
         local_size: local_size.ok_or("no LocalSize execution mode (use literal local_size_x)")?,
         push_size,
         blocks,
+        push_members,
     })
+}
+
+/// A kernel's push-constant block as compiled.
+struct PushBlock {
+    /// The kernel's constant name in `kernels` (e.g. `SORT_ONESWEEP`).
+    kernel: String,
+    /// Its GLSL source, for messages.
+    path: String,
+    size: u32,
+    /// (member name, byte offset), in declaration order.
+    members: Vec<(String, u32)>,
+}
+
+/// The macro `push_constants!(KERNEL, RustType)` (in `kernels.rs`): asserts at compile
+/// time that the `#[repr(C)]` Rust mirror of KERNEL's push-constant block has the block's
+/// size and each member as a field of the same name at the same offset, so a swapped
+/// pair of same-typed fields fails the build, not only a size change.
+fn push_checks(pushes: &[PushBlock]) -> String {
+    let mut s = String::from(
+        "\n/// Asserts at compile time that `$t` mirrors the push-constant block of the kernel\n\
+         /// named first: the same size, and every member of the block as a field of the same\n\
+         /// name at the same offset (reflected from the compiled SPIR-V).\n\
+         macro_rules! push_constants {\n",
+    );
+    for PushBlock {
+        kernel: ident,
+        path,
+        size,
+        members,
+    } in pushes
+    {
+        if members.is_empty() {
+            continue;
+        }
+        let _ = writeln!(s, "    ({ident}, $t:ty) => {{\n        const _: () = {{");
+        let _ = writeln!(
+            s,
+            "            assert!(::std::mem::size_of::<$t>() == {size}, \"push constants of {path}: \
+             the Rust mirror's size differs from the block's {size} bytes\");"
+        );
+        for (m, off) in members {
+            let _ = writeln!(
+                s,
+                "            assert!(::std::mem::offset_of!($t, {m}) == {off}, \"push constants of \
+                 {path}: the Rust mirror's `{m}` is not at the block's offset {off}\");"
+            );
+        }
+        let _ = writeln!(s, "        }};\n    }};");
+    }
+    s.push_str("}\npub(crate) use push_constants;\n");
+    s
 }
 
 /// `layouts.rs`: the macro `gpu_layout!(Block, RustType)`, which asserts at compile time
@@ -464,7 +543,7 @@ fn layouts_module(blocks: &BTreeMap<String, (Block, String)>) -> String {
         }
         let _ = writeln!(s, "        }};\n    }};");
     }
-    s.push_str("}\n");
+    s.push_str("}\npub(crate) use gpu_layout;\n");
     s
 }
 

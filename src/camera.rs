@@ -139,24 +139,24 @@ impl Camera {
     }
 
     /// Checks the camera is usable; the message names the problem.
-    pub fn validate(&self) -> crate::Result<()> {
+    pub fn validate(&self) -> crate::error::Result<()> {
         let finite = [self.fx, self.fy, self.cx, self.cy, self.near]
             .iter()
             .chain(self.c2w.iter().flatten())
             .all(|v| v.is_finite());
         if !finite {
-            return Err(crate::Error::Invalid(
+            return Err(crate::error::Error::Invalid(
                 "camera has a non-finite parameter".into(),
             ));
         }
         if self.width == 0 || self.height == 0 {
-            return Err(crate::Error::Invalid(format!(
+            return Err(crate::error::Error::Invalid(format!(
                 "camera image size {}×{} is empty",
                 self.width, self.height
             )));
         }
         if self.fx <= 0.0 || self.fy <= 0.0 || self.near <= 0.0 {
-            return Err(crate::Error::Invalid(format!(
+            return Err(crate::error::Error::Invalid(format!(
                 "camera focal lengths and near plane must be > 0 (fx {}, fy {}, near {})",
                 self.fx, self.fy, self.near
             )));

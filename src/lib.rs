@@ -18,7 +18,6 @@ pub mod data;
 pub mod error;
 pub mod eval;
 pub mod fsio;
-#[macro_use]
 pub mod gpu;
 pub mod mesh;
 pub mod raster;

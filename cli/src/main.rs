@@ -132,7 +132,7 @@ enum Command {
         downscale: Option<f64>,
         /// Configuration preset: synthetic, real, forward, object, mesh or quick, optionally
         /// with a speed modifier: `fast-train` or `fast-render` alone (on the data's preset)
-        /// or appended, e.g. real-fast-render (README "Speed ↔ accuracy") (default: the
+        /// or appended, e.g. real-fast-render (docs/PERFORMANCE.md "Speed ↔ accuracy") (default: the
         /// data's — Blender: synthetic, COLMAP/nerfstudio: real, LLFF: forward, NeuS:
         /// object; with --resume: the run's).
         #[arg(long)]
@@ -150,7 +150,7 @@ enum Command {
         max_voxels: Option<u64>,
         /// Bitwise-reproducible training: gradients summed in a fixed order instead of
         /// with float atomics, so two runs with the same seed and data on the same device
-        /// write identical checkpoints (slower: README "Deterministic training"; same as
+        /// write identical checkpoints (slower: docs/NUMERICS.md "Deterministic training"; same as
         /// --set deterministic=true).
         #[arg(long)]
         deterministic: bool,

@@ -11,14 +11,14 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
     F32s minint;  // one float per voxel
     uint count;   // voxels of the accumulator (the frame's cfg.x must not exceed it)
     uint pad;
 } pc;
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint v = linear_group_id() * 256u + gl_LocalInvocationID.x;
     if (v >= min(pc.count, P.voxels)) return;
     if (P.counts.v[v] == 0u) return;  // cs is only written for visible voxels

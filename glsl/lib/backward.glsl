@@ -1,4 +1,4 @@
-// Backward of the compositing (paper §3.2; DESIGN §4). Variants (build.rs permutation
+// Backward of the compositing (paper §3.2; docs/ARCHITECTURE.md §4). Variants (build.rs permutation
 // table): N_SAMP samples per voxel segment; FLOAT_ATOMICS (else CAS float adds);
 // COUNTERS counts the walk's work into P.counters (bench only).
 //
@@ -45,8 +45,8 @@
 layout(local_size_x = 128) in;  // WALK_WG
 
 layout(push_constant) uniform Push {
-    FrameParams P;
-    BackParams B;
+    FrameParams frame;
+    BackParams back;
     uint chunk;  // chunk index (dispatched from the last down to 0)
     uint mode;   // SEG_OFF (per tile, in chunks) or SEG_EXACT (per segment's slot)
 } pc;
@@ -56,9 +56,9 @@ shared uint s_live;
 
 void add_component(uint i, float x) {
 #ifdef DETERMINISTIC
-    if (x != 0.0) pc.B.records.v[i] += x;
+    if (x != 0.0) pc.back.records.v[i] += x;
 #else
-    atomic_add_f32(pc.B.vgrad, i, x, pc.B.lost);
+    atomic_add_f32(pc.back.vgrad, i, x, pc.back.lost);
 #endif
 }
 
@@ -75,7 +75,7 @@ float explin_grad(float x) {
 // lanes a fourth step leaves one component c0 + L₃, and plain butterflies sum the
 // 16-lane groups. Every step is uniform (called in uniform control flow).
 void reduce_add(float r[16], uint base) {
-    BackParams B = pc.B;
+    BackParams B = pc.back;
     uint lane = gl_SubgroupInvocationID;
     bool hi = (lane & 1u) != 0u;
     [[unroll]] for (uint i = 0u; i < 8u; ++i) {
@@ -114,7 +114,7 @@ void reduce_add(float r[16], uint base) {
 // emit_keys.comp's emission order (the sort keeps no index, but the emission is a pure
 // function of the voxel's rectangle and sign octants).
 uint record_index(Entry e, uvec2 tile_xy) {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint v = e.val & 0x1fffffffu, sign = e.val >> 29u;
     uvec2 tlo = uvec2(e.box.x & 0xffffu, e.box.x >> 16u) / 16u;
     uvec2 thi = uvec2(e.box.y & 0xffffu, e.box.y >> 16u) / 16u;
@@ -215,9 +215,9 @@ uint bpx_step(inout BPx s, Entry e, uint idx, bool need, inout float red[16]) {
     // NO_NORMALS variant) and the distortion loss (λ_dist ≠ 0, whose sums the forward
     // kept: FRAME_DISTORTION, checked on the host). Skipping a term whose gradient input
     // is zero changes no value.
-    bool normals = frame_normals(pc.P);
-    bool distortion = pc.B.lambda_dist != 0.0;
-    float lam_dist = pc.B.lambda_dist, lam_r = pc.B.lambda_r;
+    bool normals = frame_normals(pc.frame);
+    bool distortion = pc.back.lambda_dist != 0.0;
+    float lam_dist = pc.back.lambda_dist, lam_r = pc.back.lambda_r;
     // Recompute the forward quantities of this entry (identically to composite).
     vec4 cs = e.cs;
     float h = 0.5 * cs.w;
@@ -321,8 +321,8 @@ uint bpx_step(inout BPx s, Entry e, uint idx, bool need, inout float red[16]) {
 }
 
 void main() {
-    FrameParams P = pc.P;
-    BackParams B = pc.B;
+    FrameParams P = pc.frame;
+    BackParams B = pc.back;
     uint l = gl_LocalInvocationID.x;
     uint tiles_x = P.tiles.x;
     // The tile and the part of its list this workgroup walks: chunk `pc.chunk` of the

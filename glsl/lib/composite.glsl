@@ -24,7 +24,7 @@
 layout(local_size_x = 128) in;  // WALK_WG
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
     uint chunk;
     uint mode;  // SEG_OFF, SEG_TRANSMIT or SEG_EXACT
 } pc;
@@ -226,7 +226,7 @@ uint px_step(FrameParams P, inout Px s, Entry e, uint idx, bool need, bool track
 }
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint l = gl_LocalInvocationID.x;
     uint tiles_x = P.tiles.x;
     // The tile and the part of its list this workgroup walks: chunk `pc.chunk` of the

@@ -8,7 +8,7 @@
 // and broadcasts the six vec4s: llvmpipe turns every shared load into a loop over the
 // lanes even when the address is uniform, so 21 uniform loads cost 21 such loops, one
 // lane-parallel load plus six broadcasts a fraction of that (forward 133 → 53 ms on lego
-// 100², README). Needs a subgroup size of at least 8.
+// 100², docs/PERFORMANCE.md). Needs a subgroup size of at least 8.
 #ifndef ENTRY_STAGE_GLSL
 #define ENTRY_STAGE_GLSL
 #extension GL_EXT_control_flow_attributes : require

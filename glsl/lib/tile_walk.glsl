@@ -9,7 +9,7 @@
 // halve the trips of a walk for every entry that meets both halves of a block, so the
 // per-trip work (loading the entry, the loop, the backward's gradient reduction and
 // atomic adds) is shared by up to 2S pixels; measured on lavapipe (8 lanes) against one
-// pixel per lane: README "Two pixels per lane".
+// pixel per lane: docs/ARCHITECTURE.md §3.1.
 //
 // For every staged entry the thread that staged it computes the set of subgroups that
 // must visit it, as a bit mask (subgroup count = 128 / subgroup size ≤ 16):

@@ -7,11 +7,11 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
 } pc;
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint q = linear_group_id() * 256u + gl_LocalInvocationID.x;
     uint OW = P.out_size.x, OH = P.out_size.y;
     if (q >= OW * OH) return;

@@ -11,7 +11,7 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
 } pc;
 
 shared uint s_range[2];
@@ -27,7 +27,7 @@ uint find_voxel(FrameParams P, uint i, uint lo, uint hi) {
 }
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint used = P.stats.v[STAT_USED];
     uint i0 = linear_group_id() * 256u;
     if (i0 >= used) return;  // the whole workgroup

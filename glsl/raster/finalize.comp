@@ -9,11 +9,11 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
 } pc;
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint p = linear_group_id() * 256u + gl_LocalInvocationID.x;
     uint W = P.render_size.x, H = P.render_size.y;
     uint npix = W * H;

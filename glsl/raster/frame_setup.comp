@@ -7,13 +7,13 @@
 layout(local_size_x = 1) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
     uint max_groups_x;
     uint pad;
 } pc;
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint64_t total = U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u];
     uint cap = P.entry_capacity;
     uint used = uint(min(total, uint64_t(cap)));

@@ -9,7 +9,7 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
     U32s color;        // packed pixels, row-major: 1 word (8-bit), 2 (16F) or 4 (32F)
     F32s depth;        // 0: no depth output
     F32s host_depth;   // the host's depth values (0: none)
@@ -28,7 +28,7 @@ float srgb_decode(float x) {
 }
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint p = linear_group_id() * 256u + gl_LocalInvocationID.x;
     uint W = P.out_size.x, H = P.out_size.y;
     uint npix = W * H;

@@ -1,5 +1,5 @@
 #version 460
-// Preprocess, one invocation per voxel (paper §3.1.2; DESIGN §3.1): voxel geometry
+// Preprocess, one invocation per voxel (paper §3.1.2; docs/ARCHITECTURE.md §3): voxel geometry
 // relative to the camera, near-plane clipping and projection to a pixel rectangle,
 // the ray-sign octants that can hit the voxel, the number of (tile, sign) entries,
 // gathered corner densities, SH colour and normal.
@@ -12,7 +12,7 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
 } pc;
 
 void project(FrameParams P, vec3 c, inout vec2 lo, inout vec2 hi) {
@@ -22,7 +22,7 @@ void project(FrameParams P, vec3 c, inout vec2 lo, inout vec2 hi) {
 }
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint v = linear_group_id() * 256u + gl_LocalInvocationID.x;
     uint n = P.voxels;
     if (v >= n) return;

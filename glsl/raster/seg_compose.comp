@@ -14,13 +14,13 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
     uint mode;  // SEG_PREFIX or SEG_MERGE
     uint pad;
 } pc;
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint tile = gl_WorkGroupID.y * P.tiles.x + gl_WorkGroupID.x;
     uint q = gl_LocalInvocationID.x;
     uvec2 pix = gl_WorkGroupID.xy * 16u + uvec2(q % 16u, q / 16u);

@@ -7,11 +7,11 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
 } pc;
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint tile = linear_group_id() * 256u + gl_LocalInvocationID.x;
     if (tile >= P.tiles.x * P.tiles.y) return;
     uint r0 = P.ranges.v[2u * tile], r1 = P.ranges.v[2u * tile + 1u];

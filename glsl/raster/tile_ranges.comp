@@ -5,11 +5,11 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
 } pc;
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint i = linear_group_id() * 256u + gl_LocalInvocationID.x;
     uint n = P.stats.v[STAT_USED];
     if (i >= n) return;

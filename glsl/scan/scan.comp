@@ -15,8 +15,8 @@
 layout(local_size_x = WG) in;
 
 layout(push_constant) uniform Push {
-    U32s input_;
-    U32s output_;
+    U32s src;
+    U32s dst;
     U32s state;
     U64s status;   // [tiles] look-back words
     U32s total;    // optional
@@ -44,7 +44,7 @@ void main() {
     uint sum = 0u;
     for (uint i = 0u; i < IPT; i++) {
         uint idx = base + i;
-        x[i] = idx < n ? pc.input_.v[idx] : 0u;
+        x[i] = idx < n ? pc.src.v[idx] : 0u;
         sum += x[i];
     }
     uint in_sg = subgroupExclusiveAdd(sum);
@@ -90,7 +90,7 @@ void main() {
                 if (t == 0u) s_fallback = 0u;
                 barrier();
                 uint part = 0u;
-                for (uint i = 0u; i < IPT; i++) part += pc.input_.v[j * TILE + t * IPT + i];
+                for (uint i = 0u; i < IPT; i++) part += pc.src.v[j * TILE + t * IPT + i];
                 part = subgroupAdd(part);
                 if (subgroupElect()) atomicAdd(s_fallback, part);
                 barrier();
@@ -116,7 +116,7 @@ void main() {
     uint run = before + s_sg[gl_SubgroupID] + in_sg;
     for (uint i = 0u; i < IPT; i++) {
         uint idx = base + i;
-        if (idx < n) pc.output_.v[idx] = run;
+        if (idx < n) pc.dst.v[idx] = run;
         run += x[i];
     }
     if (tile == ntiles - 1u && t == 0u) {

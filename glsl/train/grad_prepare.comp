@@ -10,8 +10,8 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
-    BackParams B;
+    FrameParams frame;
+    BackParams back;
 } pc;
 
 // Sum of the tent weights of output pixel o along one axis (render size n).
@@ -25,8 +25,8 @@ float tent_sum(float o, float scale, float rad, uint n) {
 }
 
 void main() {
-    FrameParams P = pc.P;
-    BackParams B = pc.B;
+    FrameParams P = pc.frame;
+    BackParams B = pc.back;
     uint p = linear_group_id() * 256u + gl_LocalInvocationID.x;
     uint W = P.render_size.x, H = P.render_size.y;
     if (p >= W * H) return;

@@ -1,6 +1,6 @@
 #version 460
 // Pixel losses of a training frame and their gradients w.r.t. the frame's outputs
-// (DESIGN §4). Per output pixel q: MSE over rgb (mean over 3·npix), the transmittance
+// (docs/ARCHITECTURE.md §4). Per output pixel q: MSE over rgb (mean over 3·npix), the transmittance
 // concentration T²(1-T)² with T = 1 - alpha (mean over npix), the inside term T² (the
 // reference's lambda_T_inside: every ray ends inside the model, mean over npix); writes
 // EVERY channel of
@@ -14,7 +14,7 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
+    FrameParams frame;
     F32s out_img;   // planar IMG_CHANNELS at output resolution
     F32s gt;        // planar rgb at output resolution
     F32s dout;      // planar DO_CHANNELS
@@ -30,7 +30,7 @@ layout(push_constant) uniform Push {
 shared float s_red[4][256];
 
 void main() {
-    FrameParams P = pc.P;
+    FrameParams P = pc.frame;
     uint l = gl_LocalInvocationID.x;
     uint g = linear_group_id();
     uint q = g * 256u + l;

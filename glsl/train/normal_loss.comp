@@ -39,7 +39,7 @@ layout(push_constant) uniform Push {
     float w_mean;   // λ_mean / npix
     uint width;
     uint height;
-    uint pad0;
+    uint pad;
 } pc;
 
 shared float s_red[2][256];

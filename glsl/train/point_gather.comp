@@ -10,14 +10,14 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
-    BackParams B;
+    FrameParams frame;
+    BackParams back;
     uint points;
     uint pad;
 } pc;
 
 void main() {
-    BackParams B = pc.B;
+    BackParams B = pc.back;
     uint g = linear_group_id() * 256u + gl_LocalInvocationID.x;
     if (g >= pc.points) return;
     uint lo = B.point_off.v[g], hi = B.point_off.v[g + 1u];

@@ -12,15 +12,15 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
-    BackParams B;
+    FrameParams frame;
+    BackParams back;
     uint chunk;
-    uint pad;
+    uint mode; // unused: the walk mode of the shared ChunkPush mirror (0 here)
 } pc;
 
 void main() {
-    FrameParams P = pc.P;
-    BackParams B = pc.B;
+    FrameParams P = pc.frame;
+    BackParams B = pc.back;
     uint v = linear_group_id() * 256u + gl_LocalInvocationID.x;
     if (v >= P.voxels) return;
     uint n = P.counts.v[v];

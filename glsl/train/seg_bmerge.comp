@@ -19,17 +19,17 @@
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
-    FrameParams P;
-    BackParams B;
+    FrameParams frame;
+    BackParams back;
 } pc;
 
 float st(uint ch, uint slot, uint q) {
-    return pc.P.seg_state.v[seg_word(pc.P, ch, slot, q)];
+    return pc.frame.seg_state.v[seg_word(pc.frame, ch, slot, q)];
 }
 
 void main() {
-    FrameParams P = pc.P;
-    BackParams B = pc.B;
+    FrameParams P = pc.frame;
+    BackParams B = pc.back;
     uint tile = gl_WorkGroupID.y * P.tiles.x + gl_WorkGroupID.x;
     uint q = gl_LocalInvocationID.x;
     uvec2 pix = gl_WorkGroupID.xy * 16u + uvec2(q % 16u, q / 16u);

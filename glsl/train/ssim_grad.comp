@@ -11,15 +11,15 @@ layout(push_constant) uniform Push {
     F32s x;
     F32s y;
     F32s grad;
-    uint W;
-    uint H;
+    uint width;
+    uint height;
     float scale;
     uint pad;
     float gauss[12];
 } pc;
 
 void main() {
-    uint W = pc.W, H = pc.H;
+    uint W = pc.width, H = pc.height;
     uint npix = W * H;
     uint i = linear_group_id() * 256u + gl_LocalInvocationID.x;
     if (i >= 3u * npix) return;

@@ -7,13 +7,13 @@ layout(local_size_x = 256) in;
 layout(push_constant) uniform Push {
     F32s src;  // 9 planes from ssim_stats
     F32s dst;  // 9 planes
-    uint W;
-    uint H;
+    uint width;
+    uint height;
     float gauss[12];
 } pc;
 
 void main() {
-    uint W = pc.W, H = pc.H;
+    uint W = pc.width, H = pc.height;
     uint npix = W * H;
     uint i = linear_group_id() * 256u + gl_LocalInvocationID.x;
     if (i >= 3u * npix) return;

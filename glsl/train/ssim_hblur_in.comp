@@ -9,13 +9,13 @@ layout(push_constant) uniform Push {
     F32s x;
     F32s y;
     F32s dst;
-    uint W;
-    uint H;
+    uint width;
+    uint height;
     float gauss[12];  // 11 normalised taps (index 5 = centre), [11] unused
 } pc;
 
 void main() {
-    uint W = pc.W, H = pc.H;
+    uint W = pc.width, H = pc.height;
     uint npix = W * H;
     uint i = linear_group_id() * 256u + gl_LocalInvocationID.x;
     if (i >= 3u * npix) return;

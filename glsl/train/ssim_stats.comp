@@ -12,8 +12,8 @@ layout(push_constant) uniform Push {
     F32s src;       // 15 planes from ssim_hblur_in
     F32s dst;       // 9 planes: A, B, Cm per channel
     F32s partials;  // one float per workgroup
-    uint W;
-    uint H;
+    uint width;
+    uint height;
     float gauss[12];
 } pc;
 
@@ -23,7 +23,7 @@ const float C2 = 0.03 * 0.03;
 shared float red[256];
 
 void main() {
-    uint W = pc.W, H = pc.H;
+    uint W = pc.width, H = pc.height;
     uint npix = W * H;
     uint lid = gl_LocalInvocationID.x;
     // Padding groups of a 2-D grid leave as a whole (uniformly: no barrier is reached

@@ -8,9 +8,9 @@ pub mod stats;
 pub mod topology;
 
 use crate::camera::Camera;
+use crate::error::{Error, Result};
 use crate::raster::Renderer;
 use crate::scene::Scene;
-use crate::{Error, Result};
 use stats::StatsPass;
 use topology::Topology;
 

@@ -11,9 +11,9 @@
 //! as many voxels as the main region, and unseen ones are removed.
 
 use crate::camera::Camera;
+use crate::error::{Error, Result};
 use crate::raster::Renderer;
 use crate::scene::{octpath_from_ijk, Scene, MAX_LEVEL};
-use crate::{Error, Result};
 
 use super::stats::StatsPass;
 

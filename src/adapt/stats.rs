@@ -29,8 +29,8 @@ use bytemuck::{Pod, Zeroable};
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
+use crate::gpu::kernels::push_constants;
 use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Ticket};
-use crate::push_constants;
 use crate::raster::{FrameCheck, FrameStats, RenderOptions, Renderer};
 use crate::scene::Scene;
 use crate::scene::SceneGpu;
@@ -67,12 +67,12 @@ impl VoxelStats {
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct IntervalPush {
-    params: u64,
+    frame: u64,
     minint: u64,
     count: u32,
     pad: u32,
 }
-push_constants!(IntervalPush, kernels::ADAPT_SAMPLING_INTERVAL);
+push_constants!(ADAPT_SAMPLING_INTERVAL, IntervalPush);
 
 /// The statistics pass: the interval kernel and the device accumulators.
 pub struct StatsPass {
@@ -306,7 +306,7 @@ impl StatsPass {
     pub fn record_interval_fold(&self, cmd: vk::CommandBuffer, params: u64) -> Result<()> {
         let (_, mi) = self.buffers()?;
         let push = IntervalPush {
-            params,
+            frame: params,
             minint: mi.address(),
             count: self.voxels,
             pad: 0,

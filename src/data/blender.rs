@@ -23,7 +23,7 @@ use serde_json::Value;
 
 use super::image::{io_error, load_rgba};
 use super::{area_resample, downscaled_size, Camera, Dataset, Frame};
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// Intrinsics as stored in the transforms file.
 #[derive(Clone, Copy, Debug)]

@@ -21,8 +21,8 @@ use rand_pcg::Pcg64;
 use super::blender::parse_matrix;
 use super::image::{io_error, save_rgba_png, write_atomic};
 use super::Camera;
+use crate::error::{Error, Result};
 use crate::scene::{key_coords, octpath_from_ijk, Scene, MAX_SH_DEGREE};
-use crate::{Error, Result};
 
 /// Horizontal field of view of the demo cameras (as NeRF-synthetic).
 pub const CAMERA_ANGLE_X: f64 = 0.6911112070083618;

@@ -11,7 +11,7 @@ use std::path::Path;
 use image::codecs::png::PngEncoder;
 use image::{ExtendedColorType, ImageEncoder, ImageFormat};
 
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// Writes an 8-bit RGB PNG from `width × height` row-major pixels.
 pub fn save_rgb_png(path: &Path, width: u32, height: u32, rgb: &[[f32; 3]]) -> Result<()> {

@@ -10,9 +10,9 @@
 
 use std::path::Path;
 
-use super::capture::{image_folder, natural_cmp, Shot};
 use super::lens::{CameraModel, Lens};
-use crate::{Error, Result};
+use super::shot::{image_folder, natural_cmp, Shot};
+use crate::error::{Error, Result};
 
 /// One LLFF row: the shot (its `name` filled in from the image folder) and the depth
 /// bounds.

@@ -18,6 +18,7 @@ pub mod llff;
 pub mod nerfstudio;
 pub mod neus;
 pub mod ply;
+pub mod shot;
 
 /// The pinhole camera (its home is [`crate::camera`]; re-exported for loaders).
 pub use crate::camera::Camera;
@@ -102,7 +103,7 @@ pub fn load_split(
     split: &str,
     downscale: f64,
     background: [f32; 3],
-) -> crate::Result<Dataset> {
+) -> crate::error::Result<Dataset> {
     load(dir, split, downscale, background, &SourceOptions::default())
 }
 
@@ -113,7 +114,7 @@ pub fn load(
     downscale: f64,
     background: [f32; 3],
     source: &SourceOptions,
-) -> crate::Result<Dataset> {
+) -> crate::error::Result<Dataset> {
     let format = source.format.unwrap_or_else(|| detect_format(dir));
     let opts = CaptureOptions {
         images: source.images.clone(),
@@ -121,7 +122,7 @@ pub fn load(
         holdout: source.holdout.unwrap_or(8),
     };
     if format == Format::Blender && (source.images.is_some() || source.holdout.is_some()) {
-        return Err(crate::Error::Invalid(format!(
+        return Err(crate::error::Error::Invalid(format!(
             "{}: --images and --holdout apply to captures (COLMAP, nerfstudio, LLFF), not to \
              a Blender dataset, whose splits are its transforms_*.json files",
             dir.display()
@@ -134,7 +135,7 @@ pub fn load(
         Format::Nerfstudio => capture::load_nerfstudio(dir, split, &opts),
         Format::Neus => {
             if source.images.is_some() {
-                return Err(crate::Error::Invalid(format!(
+                return Err(crate::error::Error::Invalid(format!(
                     "{}: a NeuS capture's photos are in image/ (--images does not apply)",
                     dir.display()
                 )));

@@ -17,9 +17,9 @@ use std::path::{Path, PathBuf};
 
 use serde_json::Value;
 
-use super::capture::{natural_cmp, Shot};
 use super::lens::{CameraModel, Lens};
-use crate::{Error, Result};
+use super::shot::{natural_cmp, Shot};
+use crate::error::{Error, Result};
 
 /// The shots of `dir/transforms.json`, sorted by image path, and the image folder their
 /// names are relative to (`images/` for the usual layout).

@@ -23,10 +23,11 @@ use std::path::{Path, PathBuf};
 use glam::{DMat3, DVec3};
 use rayon::prelude::*;
 
-use super::capture::{check_split, in_split, natural_cmp, IMAGE_EXTENSIONS};
+use super::capture::{check_split, in_split};
 use super::image::load_rgba;
+use super::shot::{natural_cmp, IMAGE_EXTENSIONS};
 use super::{area_resample, downscaled_size, Camera, Dataset, Frame};
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// Named arrays: shape and values (f64).
 pub type Arrays = std::collections::BTreeMap<String, (Vec<u64>, Vec<f64>)>;

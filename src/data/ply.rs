@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// Byte size of a PLY scalar type.
 pub(crate) fn type_size(t: &str) -> Option<usize> {

@@ -12,11 +12,11 @@ pub mod ssim;
 use std::time::Instant;
 
 use crate::data::Dataset;
+use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::raster::{RenderOptions, Renderer};
 use crate::scene::Scene;
 use crate::scene::SceneGpu;
-use crate::{Error, Result};
 
 /// PSNR in dB of `a` against `b` on [0, 1] RGB (values clamped as when saved to PNG;
 /// +inf for identical images). Panics if the lengths differ.

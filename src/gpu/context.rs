@@ -1,20 +1,16 @@
 //! `Context`: the Vulkan instance/device the engine runs on, either created here (owned)
 //! or borrowed from a host engine that already has one.
 
-use std::ffi::{c_void, CStr, CString};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::ffi::CString;
+use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 
 use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 
-use super::device::{
-    compute_queue_family, cstr_field, query_support, type_name, type_rank, version_string,
-    DeviceInfo,
-};
-use crate::error::{Error, Result, VkContext};
-
-const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
+use super::device::{cstr_field, query_support, type_name, version_string, DeviceInfo};
+use super::validation::ValidationLog;
+use crate::error::{Error, Result};
 
 /// How to create an owned context.
 #[derive(Clone, Debug, Default)]
@@ -51,11 +47,6 @@ pub struct BorrowedHandles {
     pub conditional_rendering: bool,
 }
 
-pub(crate) struct ValidationLog {
-    count: AtomicU64,
-    messages: Mutex<Vec<String>>,
-}
-
 pub(crate) struct Inner {
     _entry: ash::Entry,
     pub instance: ash::Instance,
@@ -73,7 +64,7 @@ pub(crate) struct Inner {
     /// Guards `queue` (Vulkan requires external synchronisation) and the command pool.
     pub submit: Mutex<vk::CommandPool>,
     pub conditional: Option<ash::ext::conditional_rendering::Device>,
-    pub(crate) queue_state: super::queue::QueueState,
+    pub(crate) queue_state: super::pending::QueueState,
 }
 
 // SAFETY: the raw ValidationLog pointer is only read through `&` and the log is Sync.
@@ -101,325 +92,7 @@ pub struct Context {
     pub(crate) inner: Arc<Inner>,
 }
 
-unsafe extern "system" fn debug_callback(
-    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
-    ty: vk::DebugUtilsMessageTypeFlagsEXT,
-    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
-    user: *mut c_void,
-) -> vk::Bool32 {
-    let msg = if data.is_null() || (*data).p_message.is_null() {
-        String::from("(no message)")
-    } else {
-        CStr::from_ptr((*data).p_message)
-            .to_string_lossy()
-            .into_owned()
-    };
-    let serious = severity.intersects(
-        vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
-            | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
-    );
-    if serious && ty.contains(vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION) && !user.is_null() {
-        let log = &*(user as *const ValidationLog);
-        log.count.fetch_add(1, Ordering::SeqCst);
-        if let Ok(mut m) = log.messages.lock() {
-            m.push(msg.clone());
-        }
-        eprintln!("[vulkan validation] {msg}");
-    } else if serious {
-        eprintln!("[vulkan] {msg}");
-    }
-    vk::FALSE
-}
-
-fn env_flag(name: &str) -> bool {
-    std::env::var(name).is_ok_and(|v| !v.is_empty() && v != "0")
-}
-
 impl Context {
-    /// Creates an owned instance and device.
-    pub fn new(opts: &ContextOptions) -> Result<Self> {
-        let entry = unsafe { ash::Entry::load() }.map_err(|e| Error::Loader(e.to_string()))?;
-        let validation = opts.validation || env_flag("SVRASTER_VALIDATION");
-        let loader_api = unsafe { entry.try_enumerate_instance_version() }
-            .vk("vkEnumerateInstanceVersion")?
-            .unwrap_or(vk::API_VERSION_1_0);
-        if loader_api < vk::API_VERSION_1_2 {
-            return Err(Error::NoDevice(format!(
-                "the Vulkan loader supports only API {}; 1.2 or newer is required",
-                version_string(loader_api)
-            )));
-        }
-        let api = loader_api.min(vk::API_VERSION_1_3);
-
-        let mut layers: Vec<*const std::ffi::c_char> = Vec::new();
-        let mut exts: Vec<*const std::ffi::c_char> = Vec::new();
-        let inst_exts = unsafe { entry.enumerate_instance_extension_properties(None) }
-            .vk("vkEnumerateInstanceExtensionProperties")?;
-        let has_debug_utils = inst_exts
-            .iter()
-            .any(|e| e.extension_name_as_c_str() == Ok(ash::ext::debug_utils::NAME));
-        let mut use_validation_features = false;
-        if validation {
-            let avail = unsafe { entry.enumerate_instance_layer_properties() }
-                .vk("vkEnumerateInstanceLayerProperties")?;
-            if !avail
-                .iter()
-                .any(|l| l.layer_name_as_c_str() == Ok(VALIDATION_LAYER))
-            {
-                return Err(Error::NoValidationLayer);
-            }
-            layers.push(VALIDATION_LAYER.as_ptr());
-            let lexts =
-                unsafe { entry.enumerate_instance_extension_properties(Some(VALIDATION_LAYER)) }
-                    .unwrap_or_default();
-            if lexts
-                .iter()
-                .any(|e| e.extension_name_as_c_str() == Ok(ash::ext::validation_features::NAME))
-            {
-                exts.push(ash::ext::validation_features::NAME.as_ptr());
-                use_validation_features = true;
-            }
-        }
-        let debug_utils = has_debug_utils || validation;
-        if debug_utils {
-            exts.push(ash::ext::debug_utils::NAME.as_ptr());
-        }
-
-        let log = Box::into_raw(Box::new(ValidationLog {
-            count: AtomicU64::new(0),
-            messages: Mutex::new(Vec::new()),
-        }));
-        let app = vk::ApplicationInfo::default()
-            .application_name(c"svraster")
-            .engine_name(c"svraster-vk")
-            .api_version(api);
-        let mut messenger_ci = vk::DebugUtilsMessengerCreateInfoEXT::default()
-            .message_severity(
-                vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
-                    | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
-            )
-            .message_type(
-                vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
-                    | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
-                    | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
-            )
-            .pfn_user_callback(Some(debug_callback))
-            .user_data(log as *mut c_void);
-        let enables = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
-        let mut vfeat = vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
-        let mut ici = vk::InstanceCreateInfo::default()
-            .application_info(&app)
-            .enabled_layer_names(&layers)
-            .enabled_extension_names(&exts);
-        if validation {
-            ici = ici.push_next(&mut messenger_ci);
-            if use_validation_features {
-                ici = ici.push_next(&mut vfeat);
-            }
-        }
-        let instance = match unsafe { entry.create_instance(&ici, None) } {
-            Ok(i) => i,
-            Err(e) => {
-                drop(unsafe { Box::from_raw(log) });
-                return Err(Error::Vulkan {
-                    call: "vkCreateInstance",
-                    result: e,
-                });
-            }
-        };
-        // From here on, failures must destroy the instance.
-        let result = Self::finish_owned(
-            &entry,
-            &instance,
-            opts,
-            validation,
-            debug_utils,
-            log,
-            &messenger_ci,
-        );
-        match result {
-            Ok(ctx) => Ok(ctx),
-            Err(e) => {
-                unsafe { instance.destroy_instance(None) };
-                drop(unsafe { Box::from_raw(log) });
-                Err(e)
-            }
-        }
-    }
-
-    #[allow(clippy::too_many_arguments)]
-    fn finish_owned(
-        entry: &ash::Entry,
-        instance: &ash::Instance,
-        opts: &ContextOptions,
-        validation: bool,
-        debug_utils: bool,
-        log: *mut ValidationLog,
-        messenger_ci: &vk::DebugUtilsMessengerCreateInfoEXT<'_>,
-    ) -> Result<Self> {
-        let pdevs =
-            unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
-        if pdevs.is_empty() {
-            return Err(Error::NoDevice(
-                "the Vulkan loader found no device. Install a driver; for a CPU device: `apt-get install mesa-vulkan-drivers` (lavapipe)".into(),
-            ));
-        }
-        let selector = opts.device.clone().or_else(|| {
-            std::env::var("SVRASTER_DEVICE")
-                .ok()
-                .filter(|s| !s.is_empty())
-        });
-        let described: Vec<(vk::PhysicalDevice, String, vk::PhysicalDeviceType)> = pdevs
-            .iter()
-            .map(|&p| {
-                let pr = unsafe { instance.get_physical_device_properties(p) };
-                (p, cstr_field(&pr.device_name), pr.device_type)
-            })
-            .collect();
-        let list = described
-            .iter()
-            .enumerate()
-            .map(|(i, (_, n, t))| format!("[{i}] {n} ({})", type_name(*t)))
-            .collect::<Vec<_>>()
-            .join(", ");
-        let pdev = if let Some(sel) = selector {
-            let found = match sel.parse::<usize>() {
-                Ok(i) => described.get(i).map(|d| d.0),
-                Err(_) => described
-                    .iter()
-                    .find(|d| d.1.to_lowercase().contains(&sel.to_lowercase()))
-                    .map(|d| d.0),
-            };
-            let p = found.ok_or_else(|| {
-                Error::NoDevice(format!("no device matches `{sel}`; available: {list}"))
-            })?;
-            let s = query_support(instance, p);
-            if !s.missing.is_empty() {
-                let name = described
-                    .iter()
-                    .find(|d| d.0 == p)
-                    .map(|d| d.1.clone())
-                    .unwrap_or_default();
-                return Err(Error::MissingFeatures {
-                    device: name,
-                    missing: s.missing.join(", "),
-                });
-            }
-            p
-        } else {
-            let mut cands: Vec<_> = described
-                .iter()
-                .filter(|d| {
-                    query_support(instance, d.0).missing.is_empty()
-                        && compute_queue_family(instance, d.0).is_some()
-                })
-                .collect();
-            cands.sort_by_key(|d| type_rank(d.2));
-            match cands.first() {
-                Some(d) => d.0,
-                None => {
-                    let why = described
-                        .iter()
-                        .map(|d| {
-                            format!(
-                                "{}: missing {}",
-                                d.1,
-                                query_support(instance, d.0).missing.join(", ")
-                            )
-                        })
-                        .collect::<Vec<_>>()
-                        .join("; ");
-                    return Err(Error::NoDevice(format!(
-                        "no device has the required features ({why})"
-                    )));
-                }
-            }
-        };
-        let support = query_support(instance, pdev);
-        let qf = compute_queue_family(instance, pdev).ok_or_else(|| {
-            Error::NoDevice("the device has no compute queue with timestamps".into())
-        })?;
-
-        let prio = [1.0f32];
-        let qci = [vk::DeviceQueueCreateInfo::default()
-            .queue_family_index(qf)
-            .queue_priorities(&prio)];
-        let mut dev_exts: Vec<*const std::ffi::c_char> = Vec::new();
-        if support.float_atomic_add {
-            dev_exts.push(ash::ext::shader_atomic_float::NAME.as_ptr());
-        }
-        if support.conditional_rendering {
-            dev_exts.push(ash::ext::conditional_rendering::NAME.as_ptr());
-        }
-        let f10 = vk::PhysicalDeviceFeatures::default().shader_int64(true);
-        let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
-            .buffer_device_address(true)
-            .shader_buffer_int64_atomics(true);
-        let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
-            .subgroup_size_control(true)
-            .compute_full_subgroups(true);
-        let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
-            .shader_buffer_float32_atomics(true)
-            .shader_buffer_float32_atomic_add(true);
-        let mut f2 = vk::PhysicalDeviceFeatures2::default()
-            .features(f10)
-            .push_next(&mut f12);
-        if support.full_subgroups {
-            f2 = f2.push_next(&mut f13);
-        }
-        if support.float_atomic_add {
-            f2 = f2.push_next(&mut fa);
-        }
-        let mut fc = vk::PhysicalDeviceConditionalRenderingFeaturesEXT::default()
-            .conditional_rendering(true);
-        if support.conditional_rendering {
-            f2 = f2.push_next(&mut fc);
-        }
-        let dci = vk::DeviceCreateInfo::default()
-            .queue_create_infos(&qci)
-            .enabled_extension_names(&dev_exts)
-            .push_next(&mut f2);
-        let device = unsafe { instance.create_device(pdev, &dci, None) }.vk("vkCreateDevice")?;
-
-        let messenger = if validation {
-            let du = ash::ext::debug_utils::Instance::new(entry, instance);
-            match unsafe { du.create_debug_utils_messenger(messenger_ci, None) } {
-                Ok(m) => Some((du, m)),
-                Err(e) => {
-                    unsafe { device.destroy_device(None) };
-                    return Err(Error::Vulkan {
-                        call: "vkCreateDebugUtilsMessengerEXT",
-                        result: e,
-                    });
-                }
-            }
-        } else {
-            None
-        };
-        let handles = BorrowedHandles {
-            entry: entry.clone(),
-            instance: instance.clone(),
-            physical_device: pdev,
-            device,
-            queue_family_index: qf,
-            queue_index: 0,
-            debug_utils,
-            float_atomic_add: support.float_atomic_add,
-            full_subgroups: support.full_subgroups,
-            conditional_rendering: support.conditional_rendering,
-        };
-        Self::build(
-            handles,
-            true,
-            messenger,
-            if validation {
-                Some(log as *const _)
-            } else {
-                None
-            },
-        )
-    }
-
     /// Borrows a host engine's instance, device and queue. Nothing of the host's is
     /// destroyed when the context drops; the host must keep them alive longer and must
     /// not use the same queue from another thread while the engine submits to it.
@@ -459,7 +132,7 @@ impl Context {
         ]
     }
 
-    fn build(
+    pub(super) fn build(
         h: BorrowedHandles,
         owned: bool,
         messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
@@ -697,8 +370,9 @@ impl Drop for Inner {
     fn drop(&mut self) {
         unsafe {
             let _ = self.device.device_wait_idle();
-            super::queue::destroy_in_flight(self);
-            super::queue::free_parked(self, true);
+            self.queue_state.destroy_in_flight(&self.device);
+            self.queue_state
+                .free_parked(&self.device, &self.allocator, true);
             if let Ok(pool) = self.submit.lock() {
                 self.device.destroy_command_pool(*pool, None);
             }

@@ -6,6 +6,8 @@ use std::ffi::CStr;
 
 use ash::vk;
 
+use crate::error::{Error, Result, VkContext};
+
 /// What the engine learned about its device.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct DeviceInfo {
@@ -242,6 +244,145 @@ pub(super) fn compute_queue_family(
         .position(|f| ok(f) && f.queue_flags.contains(vk::QueueFlags::GRAPHICS))
         .or_else(|| fams.iter().position(ok))
         .map(|i| i as u32)
+}
+
+/// The physical device to run on: `wanted` (an index or a case-insensitive name
+/// substring; else `SVRASTER_DEVICE`), or the best of discrete > integrated > virtual >
+/// CPU among those with the required features and a compute queue.
+pub(super) fn pick_physical_device(
+    instance: &ash::Instance,
+    wanted: Option<String>,
+) -> Result<vk::PhysicalDevice> {
+    let pdevs =
+        unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
+    if pdevs.is_empty() {
+        return Err(Error::NoDevice(
+                "the Vulkan loader found no device. Install a driver; for a CPU device: `apt-get install mesa-vulkan-drivers` (lavapipe)".into(),
+            ));
+    }
+    let selector = wanted.or_else(|| {
+        std::env::var("SVRASTER_DEVICE")
+            .ok()
+            .filter(|s| !s.is_empty())
+    });
+    let described: Vec<(vk::PhysicalDevice, String, vk::PhysicalDeviceType)> = pdevs
+        .iter()
+        .map(|&p| {
+            let pr = unsafe { instance.get_physical_device_properties(p) };
+            (p, cstr_field(&pr.device_name), pr.device_type)
+        })
+        .collect();
+    let list = described
+        .iter()
+        .enumerate()
+        .map(|(i, (_, n, t))| format!("[{i}] {n} ({})", type_name(*t)))
+        .collect::<Vec<_>>()
+        .join(", ");
+    let pdev = if let Some(sel) = selector {
+        let found = match sel.parse::<usize>() {
+            Ok(i) => described.get(i).map(|d| d.0),
+            Err(_) => described
+                .iter()
+                .find(|d| d.1.to_lowercase().contains(&sel.to_lowercase()))
+                .map(|d| d.0),
+        };
+        let p = found.ok_or_else(|| {
+            Error::NoDevice(format!("no device matches `{sel}`; available: {list}"))
+        })?;
+        let s = query_support(instance, p);
+        if !s.missing.is_empty() {
+            let name = described
+                .iter()
+                .find(|d| d.0 == p)
+                .map(|d| d.1.clone())
+                .unwrap_or_default();
+            return Err(Error::MissingFeatures {
+                device: name,
+                missing: s.missing.join(", "),
+            });
+        }
+        p
+    } else {
+        let mut cands: Vec<_> = described
+            .iter()
+            .filter(|d| {
+                query_support(instance, d.0).missing.is_empty()
+                    && compute_queue_family(instance, d.0).is_some()
+            })
+            .collect();
+        cands.sort_by_key(|d| type_rank(d.2));
+        match cands.first() {
+            Some(d) => d.0,
+            None => {
+                let why = described
+                    .iter()
+                    .map(|d| {
+                        format!(
+                            "{}: missing {}",
+                            d.1,
+                            query_support(instance, d.0).missing.join(", ")
+                        )
+                    })
+                    .collect::<Vec<_>>()
+                    .join("; ");
+                return Err(Error::NoDevice(format!(
+                    "no device has the required features ({why})"
+                )));
+            }
+        }
+    };
+    Ok(pdev)
+}
+
+/// Creates the logical device with one compute queue of family `qf` and the features
+/// (and optional extensions) the kernels use.
+pub(super) fn create_device(
+    instance: &ash::Instance,
+    pdev: vk::PhysicalDevice,
+    support: &Support,
+    qf: u32,
+) -> Result<ash::Device> {
+    let prio = [1.0f32];
+    let qci = [vk::DeviceQueueCreateInfo::default()
+        .queue_family_index(qf)
+        .queue_priorities(&prio)];
+    let mut dev_exts: Vec<*const std::ffi::c_char> = Vec::new();
+    if support.float_atomic_add {
+        dev_exts.push(ash::ext::shader_atomic_float::NAME.as_ptr());
+    }
+    if support.conditional_rendering {
+        dev_exts.push(ash::ext::conditional_rendering::NAME.as_ptr());
+    }
+    let f10 = vk::PhysicalDeviceFeatures::default().shader_int64(true);
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
+        .buffer_device_address(true)
+        .shader_buffer_int64_atomics(true);
+    let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
+        .subgroup_size_control(true)
+        .compute_full_subgroups(true);
+    let mut fa = vk::PhysicalDeviceShaderAtomicFloatFeaturesEXT::default()
+        .shader_buffer_float32_atomics(true)
+        .shader_buffer_float32_atomic_add(true);
+    let mut f2 = vk::PhysicalDeviceFeatures2::default()
+        .features(f10)
+        .push_next(&mut f12);
+    if support.full_subgroups {
+        f2 = f2.push_next(&mut f13);
+    }
+    if support.float_atomic_add {
+        f2 = f2.push_next(&mut fa);
+    }
+    let mut fc =
+        vk::PhysicalDeviceConditionalRenderingFeaturesEXT::default().conditional_rendering(true);
+    if support.conditional_rendering {
+        f2 = f2.push_next(&mut fc);
+    }
+    let dci = vk::DeviceCreateInfo::default()
+        .queue_create_infos(&qci)
+        .enabled_extension_names(&dev_exts)
+        .push_next(&mut f2);
+    let device = unsafe { instance.create_device(pdev, &dci, None) }.vk("vkCreateDevice")?;
+    Ok(device)
 }
 
 #[cfg(test)]

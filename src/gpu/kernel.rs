@@ -23,22 +23,6 @@ pub struct KernelSource {
     pub push_size: u32,
 }
 
-/// Declares the `#[repr(C)]` Rust mirror of a kernel's push-constant block and checks,
-/// at compile time, that its size equals the block's size in the SPIR-V.
-#[macro_export]
-macro_rules! push_constants {
-    ($ty:ty, $src:expr) => {
-        const _: () = assert!(
-            ::std::mem::size_of::<$ty>() == $src.push_size as usize,
-            concat!(
-                "push-constant mirror ",
-                stringify!($ty),
-                " does not match its GLSL block"
-            )
-        );
-    };
-}
-
 /// A compute pipeline and its layout.
 pub struct Kernel {
     inner: Arc<Inner>,
@@ -212,5 +196,40 @@ impl LazyKernel {
         // Another thread may have made it meanwhile: keep the first, drop ours.
         let _ = self.cell.set(made);
         Ok(self.cell.get().expect("set above"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    /// Every kernel with push constants has its Rust mirror checked by
+    /// `push_constants!(KERNEL, Mirror)` somewhere in src/ (build.rs generates the
+    /// checks; this makes sure none is left out when a kernel or variant is added).
+    #[test]
+    fn every_push_block_has_a_checked_mirror() {
+        fn walk(dir: &std::path::Path, text: &mut String) {
+            for e in std::fs::read_dir(dir).unwrap() {
+                let p = e.unwrap().path();
+                if p.is_dir() {
+                    walk(&p, text);
+                } else if p.extension().is_some_and(|x| x == "rs") {
+                    text.push_str(&std::fs::read_to_string(&p).unwrap());
+                }
+            }
+        }
+        let mut src = String::new();
+        walk(
+            &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src"),
+            &mut src,
+        );
+        let missing: Vec<String> = crate::gpu::kernels::ALL
+            .iter()
+            .filter(|k| k.push_size > 0)
+            .map(|k| k.name.replace(['/', '-', '.'], "_").to_uppercase())
+            .filter(|ident| !src.contains(&format!("push_constants!({ident},")))
+            .collect();
+        assert!(
+            missing.is_empty(),
+            "kernels whose push constants no Rust mirror is checked against: {missing:?}"
+        );
     }
 }

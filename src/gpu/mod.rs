@@ -5,9 +5,13 @@
 mod buffer;
 mod context;
 mod device;
+mod instance;
 mod kernel;
+mod pending;
 mod queue;
 pub mod recorder;
+mod transfer;
+mod validation;
 
 pub use buffer::{Buffer, GrowBuffer, Memory};
 pub use context::{BorrowedHandles, Context, ContextOptions, MemoryBudget};

@@ -8,14 +8,12 @@
 //! at once: it is parked until the submissions made before its drop completed, so a
 //! buffer grown for the next iteration never pulls memory from under the running one.
 
-use std::collections::VecDeque;
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
+use std::sync::atomic::Ordering;
 
 use ash::vk;
-use gpu_allocator::vulkan::Allocation;
 
-use super::context::{Context, Inner};
+use super::context::Context;
+use super::pending::InFlight;
 use crate::error::{Error, Result, VkContext};
 
 /// Queue traffic since the context was made ([`Context::queue_counters`]): what a
@@ -52,102 +50,6 @@ impl std::ops::Sub for QueueCounters {
 /// A submission made with [`Context::submit`], to wait for with [`Context::wait`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub struct Ticket(u64);
-
-struct InFlight {
-    serial: u64,
-    fence: vk::Fence,
-    cmd: vk::CommandBuffer,
-}
-
-/// A buffer dropped while submissions were pending, freed once `serial` completed.
-pub(crate) struct Parked {
-    serial: u64,
-    raw: vk::Buffer,
-    allocation: Option<Allocation>,
-}
-
-/// The context's submissions: counters, the ones in flight, parked buffers.
-#[derive(Default)]
-pub(crate) struct QueueState {
-    submits: AtomicU64,
-    waits: AtomicU64,
-    wait_ns: AtomicU64,
-    throttles: AtomicU64,
-    throttle_ns: AtomicU64,
-    /// Serial of the newest submission (0: none yet).
-    submitted: AtomicU64,
-    /// Every submission up to this serial is known complete.
-    completed: AtomicU64,
-    flight: Mutex<VecDeque<InFlight>>,
-    parked: Mutex<Vec<Parked>>,
-}
-
-impl QueueState {
-    /// Parks a dropped buffer if submissions are pending; gives it back otherwise.
-    pub(crate) fn park(
-        &self,
-        raw: vk::Buffer,
-        allocation: Option<Allocation>,
-    ) -> Option<(vk::Buffer, Option<Allocation>)> {
-        let Ok(mut parked) = self.parked.lock() else {
-            return Some((raw, allocation));
-        };
-        let submitted = self.submitted.load(Ordering::Acquire);
-        if self.completed.load(Ordering::Acquire) >= submitted {
-            return Some((raw, allocation));
-        }
-        parked.push(Parked {
-            serial: submitted,
-            raw,
-            allocation,
-        });
-        None
-    }
-
-    /// Buffers parked now (for tests and counters).
-    pub(crate) fn parked_count(&self) -> usize {
-        self.parked.lock().map_or(0, |p| p.len())
-    }
-}
-
-/// Frees a buffer now.
-pub(crate) fn free_buffer(inner: &Inner, raw: vk::Buffer, allocation: Option<Allocation>) {
-    if let Some(a) = allocation {
-        if let Ok(mut guard) = inner.allocator.lock() {
-            if let Some(alloc) = guard.as_mut() {
-                let _ = alloc.free(a);
-            }
-        }
-    }
-    unsafe { inner.device.destroy_buffer(raw, None) };
-}
-
-/// Frees the parked buffers whose submissions completed (all with `everything`).
-pub(crate) fn free_parked(inner: &Inner, everything: bool) {
-    let done = inner.queue_state.completed.load(Ordering::Acquire);
-    let ready: Vec<Parked> = match inner.queue_state.parked.lock() {
-        Ok(mut p) => {
-            let (ready, keep) = std::mem::take(&mut *p)
-                .into_iter()
-                .partition(|b| everything || b.serial <= done);
-            *p = keep;
-            ready
-        }
-        Err(_) => return,
-    };
-    for b in ready {
-        free_buffer(inner, b.raw, b.allocation);
-    }
-}
-
-/// Destroys the fences of every submission still tracked (the device is idle).
-pub(crate) fn destroy_in_flight(inner: &Inner) {
-    if let Ok(mut f) = inner.queue_state.flight.lock() {
-        for s in f.drain(..) {
-            unsafe { inner.device.destroy_fence(s.fence, None) };
-        }
-    }
-}
 
 impl Context {
     /// Records commands with `f` into a fresh primary command buffer and submits it
@@ -319,7 +221,9 @@ impl Context {
                 }
             }
         }
-        free_parked(inner, false);
+        inner
+            .queue_state
+            .free_parked(&inner.device, &inner.allocator, false);
         Ok(())
     }
 

@@ -27,12 +27,12 @@ use std::time::Instant;
 use super::mc::{marching_cubes, TriMesh};
 use super::tsdf::{DepthView, FuseParams, TsdfFuser};
 use crate::camera::Camera;
+use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::raster::{RenderOptions, Renderer};
 use crate::scene::{
     corner_key, key_coords, voxel_corner_keys, voxel_fine_box, Scene, SceneGpu, MAX_LEVEL,
 };
-use crate::{Error, Result};
 
 /// Which rendered depth is fused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -2,7 +2,7 @@
 //! field stored on the voxels' shared grid points).
 //!
 //! Every voxel is a cube given by the indices of its 8 corners (corner order
-//! `x<<2 | y<<1 | z`, DESIGN §2) into one array of grid points with one value each. No
+//! `x<<2 | y<<1 | z`, docs/ARCHITECTURE.md §2) into one array of grid points with one value each. No
 //! case table: each voxel's surface is built from its faces, which makes the result
 //! watertight by construction.
 //!

@@ -6,7 +6,7 @@
 
 use std::path::Path;
 
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// A mesh ready to write (world coordinates).
 #[derive(Clone, Debug, Default, PartialEq)]

@@ -19,9 +19,9 @@
 use bytemuck::{Pod, Zeroable};
 
 use crate::camera::Camera;
+use crate::error::{Error, Result};
+use crate::gpu::kernels::push_constants;
 use crate::gpu::{kernels, recorder, Buffer, Context, Kernel};
-use crate::push_constants;
-use crate::{Error, Result};
 
 /// A rendered view: its camera (model frame) and per-pixel surface depth and opacity.
 #[derive(Clone, Debug)]
@@ -59,7 +59,7 @@ struct FusePush {
     crop: f32,
     pad: u32,
 }
-push_constants!(FusePush, kernels::MESH_TSDF_FUSE);
+push_constants!(MESH_TSDF_FUSE, FusePush);
 
 const CAM_FLOATS: usize = 20;
 

@@ -1,4 +1,4 @@
-//! The forward rasterizer (paper §3.1.2, supp. B; DESIGN §3).
+//! The forward rasterizer (paper §3.1.2, supp. B; docs/ARCHITECTURE.md §3).
 //!
 //! A frame is: **preprocess** (thread per voxel: camera-relative geometry, near-plane
 //! clipping, pixel rectangle, ray-sign octants, entry count, corner densities, SH colour,
@@ -45,13 +45,13 @@ pub use plan::{FrameGeometry, FrameOutputs};
 pub use readback::{FrameCheck, FrameStats, Gate, Image, CHECK_SLOTS};
 
 use crate::camera::Camera;
+use crate::error::{Error, Result};
 use crate::gpu::{
     glsl, kernels, Buffer, Context, GrowBuffer, Kernel, LazyKernel, Memory, Timestamps,
 };
 use crate::scan::PrefixScan;
 use crate::scene::{Scene, MAX_LEVEL};
 use crate::sort::RadixSort;
-use crate::{Error, Result};
 
 /// Tile edge in pixels.
 pub const TILE: u32 = 16;

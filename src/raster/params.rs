@@ -1,8 +1,8 @@
 //! The frame's parameter block and the push-constant blocks of the raster kernels, as
 //! `#[repr(C)]` mirrors of their GLSL declarations (checked at compile time).
 
-use crate::gpu::{glsl, kernels};
-use crate::push_constants;
+use crate::gpu::kernels::push_constants;
+use crate::gpu::{glsl, gpu_layout};
 
 /// Mirror of `FrameParams` in glsl/lib/raster_params.glsl, checked field by field against
 /// the compiled SPIR-V (`gpu_layout!`).
@@ -83,22 +83,22 @@ pub(crate) const AUX_CHANNELS: u64 = glsl::AUX_CHANNELS as u64;
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct ParamsPush {
-    pub(super) params: u64,
+    pub(super) frame: u64,
 }
-push_constants!(ParamsPush, kernels::RASTER_PREPROCESS);
-push_constants!(ParamsPush, kernels::RASTER_EMIT_KEYS);
-push_constants!(ParamsPush, kernels::RASTER_TILE_RANGES);
-push_constants!(ParamsPush, kernels::RASTER_FINALIZE);
-push_constants!(ParamsPush, kernels::RASTER_DOWNSAMPLE);
+push_constants!(RASTER_PREPROCESS, ParamsPush);
+push_constants!(RASTER_EMIT_KEYS, ParamsPush);
+push_constants!(RASTER_TILE_RANGES, ParamsPush);
+push_constants!(RASTER_FINALIZE, ParamsPush);
+push_constants!(RASTER_DOWNSAMPLE, ParamsPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct SetupPush {
-    pub(super) params: u64,
+    pub(super) frame: u64,
     pub(super) max_groups_x: u32,
     pub(super) pad: u32,
 }
-push_constants!(SetupPush, kernels::RASTER_FRAME_SETUP);
+push_constants!(RASTER_FRAME_SETUP, SetupPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -109,47 +109,47 @@ pub(super) struct FrameOkPush {
     pub(super) ok: u64,
     pub(super) after: u64,
 }
-push_constants!(FrameOkPush, kernels::RASTER_FRAME_OK);
+push_constants!(RASTER_FRAME_OK, FrameOkPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct SegComposePush {
-    pub(super) params: u64,
+    pub(super) frame: u64,
     /// `SEG_PREFIX` or `SEG_MERGE` (raster_params.glsl).
     pub(super) mode: u32,
     pub(super) pad: u32,
 }
-push_constants!(SegComposePush, kernels::RASTER_SEG_COMPOSE);
-push_constants!(ParamsPush, kernels::RASTER_SEG_PLAN);
+push_constants!(RASTER_SEG_COMPOSE, SegComposePush);
+push_constants!(RASTER_SEG_PLAN, ParamsPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct ChunkPush {
-    pub(super) params: u64,
+    pub(super) frame: u64,
     pub(super) chunk: u32,
     /// `SEG_OFF`, `SEG_TRANSMIT` or `SEG_EXACT` (raster_params.glsl).
     pub(super) mode: u32,
 }
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_MAXW);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_MAXW);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_MAXW);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_COUNTERS);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_COUNTERS);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_COUNTERS);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_NONORMAL);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_NONORMAL);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_NONORMAL);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K1_MAXW_NONORMAL);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K2_MAXW_NONORMAL);
-push_constants!(ChunkPush, kernels::RASTER_COMPOSITE_K3_MAXW_NONORMAL);
+push_constants!(RASTER_COMPOSITE_K1, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K2, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K3, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K1_MAXW, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K2_MAXW, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K3_MAXW, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K1_COUNTERS, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K2_COUNTERS, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K3_COUNTERS, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K1_NONORMAL, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K2_NONORMAL, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K3_NONORMAL, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K1_MAXW_NONORMAL, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K2_MAXW_NONORMAL, ChunkPush);
+push_constants!(RASTER_COMPOSITE_K3_MAXW_NONORMAL, ChunkPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct HostOutputPush {
-    pub(super) params: u64,
+    pub(super) frame: u64,
     pub(super) color: u64,
     pub(super) depth: u64,
     pub(super) host_depth: u64,
@@ -158,4 +158,4 @@ pub(super) struct HostOutputPush {
     pub(super) depth_clear: f32,
     pub(super) reverse: u32,
 }
-push_constants!(HostOutputPush, kernels::RASTER_HOST_OUTPUT);
+push_constants!(RASTER_HOST_OUTPUT, HostOutputPush);

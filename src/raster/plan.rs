@@ -3,11 +3,11 @@
 
 use super::{RenderOptions, Renderer, AUX_CHANNELS, CHANNELS, MAX_IMAGE_EDGE, TILE};
 use crate::camera::Camera;
+use crate::error::{Error, Result};
 use crate::gpu::glsl;
 use crate::scan::PrefixScan;
 use crate::scene::SceneGpu;
 use crate::sort::RadixSort;
-use crate::{Error, Result};
 
 /// Everything a recorded frame needs to interpret its results.
 #[derive(Clone, Copy, Debug)]

@@ -8,9 +8,9 @@ use super::{
     FrameOkPush, Renderer, CHANNELS, CHECK_STATE_WORDS, CHECK_WORDS, STATS_WORDS, STAT_FLAGS,
     STAT_MAX_TILE, STAT_SEG_ARGS, STAT_SLOTS, STAT_USED, STAT_VISIBLE, TILE,
 };
+use crate::error::{Error, Result};
 use crate::gpu::glsl::{self, FLAG_ENTRY_OVERFLOW, FLAG_NEED_CHUNKS};
 use crate::gpu::{recorder, Buffer};
-use crate::{Error, Result};
 
 /// Frames whose checks stay readable at once ([`Renderer::record_checks`]): the frame
 /// running and the one queued behind it.

@@ -8,10 +8,10 @@ use super::params::{ChunkPush, FrameParams, ParamsPush, SetupPush};
 use super::plan::Plan;
 use super::{FrameStats, RenderOptions, Renderer, CHANNELS, STAT_ARGS, STAT_USED, TILE};
 use crate::camera::Camera;
+use crate::error::{Error, Result};
 use crate::gpu::{glsl, recorder, Timestamps};
 use crate::scene::SceneGpu;
 use crate::sort::{Count, KeyWidth, SortBuffers, Sorted};
-use crate::{Error, Result};
 
 impl Renderer {
     /// Records only the first stage of a frame (after [`Renderer::prepare`]): the frame's
@@ -169,7 +169,7 @@ impl Renderer {
         };
         let dev = ctx.device();
         let pa = ParamsPush {
-            params: self.params.address(),
+            frame: self.params.address(),
         };
         if let Some(t) = ts.as_deref_mut() {
             t.begin(cmd);
@@ -212,7 +212,7 @@ impl Renderer {
         let max_x = ctx.info().max_compute_work_group_count[0];
         let n = scene.voxels;
         let pa = ParamsPush {
-            params: self.params.address(),
+            frame: self.params.address(),
         };
         let passes = plan.sort_bits.div_ceil(8);
         let scan = self.scan.as_ref().expect("prepared");
@@ -226,7 +226,7 @@ impl Renderer {
         self.k.setup.dispatch(
             cmd,
             &SetupPush {
-                params: self.params.address(),
+                frame: self.params.address(),
                 max_groups_x: max_x,
                 pad: 0,
             },
@@ -311,7 +311,7 @@ impl Renderer {
                 k.dispatch(
                     cmd,
                     &ChunkPush {
-                        params: self.params.address(),
+                        frame: self.params.address(),
                         chunk,
                         mode: glsl::SEG_OFF,
                     },

@@ -23,7 +23,7 @@ impl Renderer {
         let params = self.params.address();
         self.k
             .seg_plan
-            .dispatch_1d(cmd, &ParamsPush { params }, tiles);
+            .dispatch_1d(cmd, &ParamsPush { frame: params }, tiles);
         recorder::barrier(ctx, cmd);
         let args = STAT_SEG_ARGS * 4;
         for (mode, compose) in [
@@ -31,14 +31,14 @@ impl Renderer {
             (glsl::SEG_EXACT, glsl::SEG_MERGE),
         ] {
             let push = ChunkPush {
-                params,
+                frame: params,
                 chunk: 0,
                 mode,
             };
             k.dispatch_indirect(cmd, &push, self.stats.raw(), args);
             recorder::barrier(ctx, cmd);
             let push = SegComposePush {
-                params,
+                frame: params,
                 mode: compose,
                 pad: 0,
             };

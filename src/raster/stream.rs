@@ -7,9 +7,9 @@
 use super::readback::image_from_channels;
 use super::{FrameCheck, FrameStats, Image, RenderOptions, Renderer, CHANNELS};
 use crate::camera::Camera;
+use crate::error::Error;
 use crate::gpu::{recorder, Ticket};
 use crate::scene::SceneGpu;
-use crate::Error;
 
 /// A frame submitted and not yet read.
 struct Queued {

@@ -5,8 +5,8 @@ use ash::vk;
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::{Error, Result};
+use crate::gpu::kernels::push_constants;
 use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
-use crate::push_constants;
 use crate::sort::{Count, RunState, ST_ARGS_TILES, ST_N, ST_TOTAL};
 
 /// Elements per scan tile (WG × IPT in scan.comp).
@@ -15,15 +15,15 @@ pub const SCAN_TILE: u32 = 256 * 8;
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct ScanPush {
-    input: u64,
-    output: u64,
+    src: u64,
+    dst: u64,
     state: u64,
     status: u64,
     total: u64,
     spin_limit: u32,
     pad: u32,
 }
-push_constants!(ScanPush, kernels::SCAN_SCAN);
+push_constants!(SCAN_SCAN, ScanPush);
 
 /// The prefix scan and its state for up to `capacity` elements.
 pub struct PrefixScan {
@@ -81,8 +81,8 @@ impl PrefixScan {
         let ctx = &self.ctx;
         self.run.record_setup(ctx, cmd, count, SCAN_TILE, 0, 0);
         let push = ScanPush {
-            input: input.address(),
-            output: output.address(),
+            src: input.address(),
+            dst: output.address(),
             state: self.run.state.address(),
             status: self.run.status.address(),
             total: total.map(|(b, o)| b.address() + o).unwrap_or(0),

@@ -81,7 +81,7 @@ use serde::de::{Deserialize, Deserializer, MapAccess, Visitor};
 use serde_json::Value;
 
 use super::{sh_coeffs, Scene, MAX_SH_DEGREE};
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// Value of the `format` metadata key.
 pub const FORMAT: &str = "svraster-vk/1";

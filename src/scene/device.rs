@@ -1,9 +1,9 @@
 //! A scene's parameters on the device: the buffers the rasterizer reads and the trainer
 //! updates, uploaded from and downloaded into a [`Scene`].
 
+use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context};
 use crate::scene::{shs_device_len, shs_from_device, shs_to_device, Scene};
-use crate::{Error, Result};
 
 /// Uploads per-voxel SH values (`n` voxels × `w`, host layout `[N][w]`) into `buf` in
 /// the blocked device layout ([`crate::scene::SHS_BLOCK`]).

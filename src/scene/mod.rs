@@ -18,7 +18,7 @@ pub mod quantize;
 pub use device::SceneGpu;
 pub(crate) use device::{download_shs, upload_shs};
 
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// Deepest octree level (finest grid 65536³).
 pub const MAX_LEVEL: u32 = crate::gpu::glsl::MAX_LEVEL;

@@ -7,12 +7,12 @@ use std::time::Instant;
 
 use super::backward::Gradients;
 use super::config::{AdaptStep, Layout};
-use super::init::Moments;
+use super::optim::Moments;
 use super::trainer::Trainer;
 use crate::adapt::topology::Changed;
 use crate::adapt::AdaptReport;
+use crate::error::{Error, Result};
 use crate::gpu::recorder;
-use crate::{Error, Result};
 
 impl Trainer {
     /// One adaptive step (paper §3.2.2): statistics over every training view, pruning,

@@ -1,4 +1,4 @@
-//! The training backward (paper §3.2; DESIGN §4): from the loss gradients of a rendered
+//! The training backward (paper §3.2; docs/ARCHITECTURE.md §4): from the loss gradients of a rendered
 //! frame to the gradients of every model parameter.
 //!
 //! Recorded after the frame (same [`Renderer`](crate::raster::Renderer), nothing recorded in between):
@@ -17,13 +17,14 @@
 
 use ash::vk;
 
+use crate::error::{Error, Result};
+use crate::gpu::kernels::push_constants;
 use crate::gpu::{
-    glsl, kernels, recorder, Buffer, Context, GrowBuffer, Kernel, LazyKernel, Memory, Timestamps,
+    glsl, gpu_layout, kernels, recorder, Buffer, Context, GrowBuffer, Kernel, LazyKernel, Memory,
+    Timestamps,
 };
-use crate::push_constants;
 use crate::raster::{FrameGeometry, FrameStats};
 use crate::scene::SceneGpu;
-use crate::{Error, Result};
 
 mod record;
 
@@ -281,10 +282,10 @@ struct Push2 {
     frame: u64,
     back: u64,
 }
-push_constants!(Push2, kernels::TRAIN_GRAD_PREPARE);
-push_constants!(Push2, kernels::TRAIN_SEG_BMERGE);
-push_constants!(Push2, kernels::TRAIN_VOXEL_BACKWARD);
-push_constants!(Push2, kernels::TRAIN_VOXEL_BACKWARD_CAS);
+push_constants!(TRAIN_GRAD_PREPARE, Push2);
+push_constants!(TRAIN_SEG_BMERGE, Push2);
+push_constants!(TRAIN_VOXEL_BACKWARD, Push2);
+push_constants!(TRAIN_VOXEL_BACKWARD_CAS, Push2);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -296,35 +297,35 @@ struct ChunkPush {
     /// for the other kernels.
     mode: u32,
 }
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_CAS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_CAS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_CAS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_COUNTERS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_COUNTERS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_COUNTERS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_CAS_COUNTERS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_CAS_COUNTERS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_CAS_COUNTERS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_DET);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_DET);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_DET);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_DET_COUNTERS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_DET_COUNTERS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_DET_COUNTERS);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_NONORMAL);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_NONORMAL);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_NONORMAL);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_CAS_NONORMAL);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_CAS_NONORMAL);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_CAS_NONORMAL);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K1_DET_NONORMAL);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K2_DET_NONORMAL);
-push_constants!(ChunkPush, kernels::TRAIN_BACKWARD_K3_DET_NONORMAL);
-push_constants!(ChunkPush, kernels::TRAIN_RECORDS_GATHER);
-push_constants!(Push2, kernels::TRAIN_VOXEL_BACKWARD_DET);
+push_constants!(TRAIN_BACKWARD_K1, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K2, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K3, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K1_CAS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K2_CAS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K3_CAS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K1_COUNTERS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K2_COUNTERS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K3_COUNTERS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K1_CAS_COUNTERS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K2_CAS_COUNTERS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K3_CAS_COUNTERS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K1_DET, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K2_DET, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K3_DET, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K1_DET_COUNTERS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K2_DET_COUNTERS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K3_DET_COUNTERS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K1_NONORMAL, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K2_NONORMAL, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K3_NONORMAL, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K1_CAS_NONORMAL, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K2_CAS_NONORMAL, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K3_CAS_NONORMAL, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K1_DET_NONORMAL, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K2_DET_NONORMAL, ChunkPush);
+push_constants!(TRAIN_BACKWARD_K3_DET_NONORMAL, ChunkPush);
+push_constants!(TRAIN_RECORDS_GATHER, ChunkPush);
+push_constants!(TRAIN_VOXEL_BACKWARD_DET, Push2);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -334,7 +335,7 @@ struct PointPush {
     points: u32,
     pad: u32,
 }
-push_constants!(PointPush, kernels::TRAIN_POINT_GATHER);
+push_constants!(TRAIN_POINT_GATHER, PointPush);
 
 /// Kernels of the ordered reduction's two gathers.
 struct OrderedKernels {

@@ -25,19 +25,9 @@
 
 use glam::DVec3;
 
+use super::config::BOUND_MODES;
 use crate::camera::Camera;
-use crate::{Error, Result};
-
-/// Bound modes accepted by the `bound` config key (`box`: use `center`/`extent` as set).
-pub const BOUND_MODES: [&str; 7] = [
-    "box",
-    "auto",
-    "camera_median",
-    "camera_max",
-    "forward",
-    "points",
-    "sphere",
-];
+use crate::error::{Error, Result};
 
 /// For a run whose `bound` is not "box": the main region of the training data, made the
 /// run's world frame (model = (world − centre) / radius, so the region is [-1, 1]³:

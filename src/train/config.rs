@@ -1,12 +1,23 @@
 //! Training configuration: every hyperparameter, with the paper's / reference config's
-//! NeRF-synthetic defaults (DESIGN §4), presets, `key=value` overrides and the schedule
+//! NeRF-synthetic defaults (docs/ARCHITECTURE.md §4), presets, `key=value` overrides and the schedule
 //! resolved from fractions of the run.
 
 use serde::{Deserialize, Serialize};
 
 pub use super::schedule::{AdaptStep, Schedule};
 
-use crate::{Error, Result};
+use crate::error::{Error, Result};
+
+/// Bound modes accepted by the `bound` config key (`box`: use `center`/`extent` as set).
+pub const BOUND_MODES: [&str; 7] = [
+    "box",
+    "auto",
+    "camera_median",
+    "camera_max",
+    "forward",
+    "points",
+    "sphere",
+];
 
 /// The defaults' run length: milestones are given for it and scale with `iters`.
 pub const REFERENCE_ITERS: u32 = 20_000;
@@ -135,7 +146,7 @@ pub struct TrainConfig {
     /// each step renders every training view for its statistics, and a step every few
     /// iterations measures a model that has barely changed. Measured on lego 100², 300
     /// iterations: 12 steps 27.24 dB val, 2 steps (100 apart) 27.22 dB with 57 % of the
-    /// step time (README).
+    /// step time (docs/PERFORMANCE.md).
     pub adapt_min_spacing: u32,
     /// Pruning at adaptive steps up to `prune_until`, threshold on the voxel's max blend
     /// weight ramped linearly from `prune_thres_init` (first) to `prune_thres_final` (last).
@@ -150,7 +161,7 @@ pub struct TrainConfig {
     /// A step subdivides only if at least this many iterations follow it: children start
     /// as copies of their parent and pay off only once trained (the paper leaves 5 000
     /// after its last subdivision). Measured on lego 100², 300 iterations: subdividing
-    /// at iterations 105–225 gave 26.79 dB val, not subdividing 27.24 dB (README).
+    /// at iterations 105–225 gave 26.79 dB val, not subdividing 27.24 dB (docs/PERFORMANCE.md).
     pub subdivide_min_after: u32,
     pub subdivide_percent: f64,
     pub subdivide_min_rate: f32,
@@ -395,7 +406,7 @@ impl TrainConfig {
     }
 
     /// The `fast-train` modifier, chosen from the training-time Pareto fronts of `bench
-    /// trade` (README "Speed ↔ accuracy", 1 000 iterations): on the synthetic presets no
+    /// trade` (docs/PERFORMANCE.md "Speed ↔ accuracy", 1 000 iterations): on the synthetic presets no
     /// supersampling and a starting grid one level coarser (lego 100²: 3.2× faster
     /// training, −0.5 dB; the dense first phase is most of a short run), on the capture
     /// presets no supersampling and SH degree 1 (llff_flower 126×95: 1.24× faster,
@@ -478,10 +489,10 @@ impl TrainConfig {
         if !(self.ss.is_finite() && (1.0..=4.0).contains(&self.ss)) {
             return bad("ss", "must be in [1, 4]");
         }
-        if !super::bounds::BOUND_MODES.contains(&self.bound.as_str()) {
+        if !BOUND_MODES.contains(&self.bound.as_str()) {
             return bad(
                 "bound",
-                &format!("must be one of {}", super::bounds::BOUND_MODES.join(", ")),
+                &format!("must be one of {}", BOUND_MODES.join(", ")),
             );
         }
         if self.outside_level > 8 || self.outside_level + self.grid_level > crate::scene::MAX_LEVEL

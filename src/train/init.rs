@@ -6,7 +6,7 @@ use rand::SeedableRng;
 use super::backward::{Backward, Gradients, PointLists, Reduction};
 use super::config::{Layout, TrainConfig};
 use super::loss::PixelLoss;
-use super::optim::{Adam, Tv};
+use super::optim::{Adam, Moments, Tv};
 use super::ssim::Ssim;
 use super::trainer::Trainer;
 use super::views::TrainViews;
@@ -14,26 +14,10 @@ use crate::adapt::stats::StatsPass;
 use crate::adapt::topology::Topology;
 use crate::adapt::{shells, visible_only};
 use crate::data::Dataset;
-use crate::gpu::{Buffer, Context, DeviceInfo, MemoryBudget};
+use crate::error::{Error, Result};
+use crate::gpu::{Context, DeviceInfo, MemoryBudget};
 use crate::raster::Renderer;
 use crate::scene::{ijk_from_octpath, Scene, SceneGpu};
-use crate::{Error, Result};
-
-/// Adam moments of one parameter group.
-pub(super) struct Moments {
-    pub(super) m: Buffer,
-    pub(super) v: Buffer,
-}
-
-impl Moments {
-    pub(super) fn new(ctx: &Context, name: &str, count: u64) -> Result<Moments> {
-        let bytes = count.max(1) * 4;
-        Ok(Moments {
-            m: ctx.zeroed_buffer(&format!("{name}.adam-m"), bytes)?,
-            v: ctx.zeroed_buffer(&format!("{name}.adam-v"), bytes)?,
-        })
-    }
-}
 
 /// The starting grid before visibility pruning: `8^grid_level` voxels filling the main
 /// region (`center`, `extent`); with background shells (`outside_level` > 0) the root
@@ -280,7 +264,7 @@ impl Trainer {
             budget,
             budget_source,
             budget_logged: false,
-            go: ctx.zeroed_buffer("train.go", 4 * super::queue::GO_WORDS)?,
+            go: ctx.zeroed_buffer("train.go", 4 * super::iteration::GO_WORDS)?,
             last_stats: None,
             single: ctx.info().conditional_rendering,
             redone: 0,

@@ -7,10 +7,10 @@
 
 use ash::vk;
 
+use crate::error::Result;
+use crate::gpu::kernels::push_constants;
 use crate::gpu::{kernels, recorder, Context, GrowBuffer, Kernel};
-use crate::push_constants;
 use crate::raster::FrameGeometry;
-use crate::Result;
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -27,7 +27,7 @@ struct LossPush {
     w_tin: f32,
     pad: u32,
 }
-push_constants!(LossPush, kernels::TRAIN_LOSS);
+push_constants!(TRAIN_LOSS, LossPush);
 
 /// Partial sums per workgroup: squared error, concentration, distortion, inside.
 const PARTIALS: usize = 4;
@@ -161,7 +161,7 @@ struct NormalPush {
     height: u32,
     pad: u32,
 }
-push_constants!(NormalPush, kernels::TRAIN_NORMAL_LOSS);
+push_constants!(TRAIN_NORMAL_LOSS, NormalPush);
 
 /// Sums of the last recorded frame's depth–normal terms (unweighted).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]

@@ -6,6 +6,7 @@ pub mod backward;
 pub mod bounds;
 pub mod config;
 mod init;
+mod iteration;
 pub mod loss;
 pub mod optim;
 mod queue;

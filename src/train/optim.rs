@@ -16,8 +16,24 @@ use bytemuck::{Pod, Zeroable};
 
 use super::backward::Reduction;
 use crate::error::{Error, Result};
+use crate::gpu::kernels::push_constants;
 use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel};
-use crate::push_constants;
+
+/// Adam moments of one parameter group.
+pub(super) struct Moments {
+    pub(super) m: Buffer,
+    pub(super) v: Buffer,
+}
+
+impl Moments {
+    pub(super) fn new(ctx: &Context, name: &str, count: u64) -> Result<Moments> {
+        let bytes = count.max(1) * 4;
+        Ok(Moments {
+            m: ctx.zeroed_buffer(&format!("{name}.adam-m"), bytes)?,
+            v: ctx.zeroed_buffer(&format!("{name}.adam-v"), bytes)?,
+        })
+    }
+}
 
 /// Bit of the Adam flags word set by a non-finite gradient or parameter.
 pub const ADAM_FLAG_NONFINITE: u32 = 1;
@@ -66,7 +82,7 @@ struct AdamPush {
     skip_zero: u32,
     pad: u32,
 }
-push_constants!(AdamPush, kernels::TRAIN_ADAM);
+push_constants!(TRAIN_ADAM, AdamPush);
 
 impl AdamPush {
     /// The block for step `t` (≥ 1; 0 is treated as 1), the bias corrections in f64.
@@ -181,9 +197,9 @@ struct TvPush {
     voxels: u32,
     weight: f32,
 }
-push_constants!(TvPush, kernels::TRAIN_TV);
-push_constants!(TvPush, kernels::TRAIN_TV_CAS);
-push_constants!(TvPush, kernels::TRAIN_TV_DET);
+push_constants!(TRAIN_TV, TvPush);
+push_constants!(TRAIN_TV_CAS, TvPush);
+push_constants!(TRAIN_TV_DET, TvPush);
 
 /// The TV regulariser on the grid-point densities.
 pub struct Tv {

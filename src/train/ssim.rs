@@ -49,10 +49,10 @@ use std::sync::Mutex;
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
 
+use crate::error::{Error, Result};
 use crate::eval::ssim::gaussian_window;
+use crate::gpu::kernels::push_constants;
 use crate::gpu::{kernels, recorder, Buffer, Context, Kernel, Memory};
-use crate::push_constants;
-use crate::{Error, Result};
 
 /// Threads per workgroup of the four SSIM kernels (reflected; one grid serves all four).
 const WG: u64 = kernels::TRAIN_SSIM_STATS.local_size[0] as u64;
@@ -73,7 +73,7 @@ struct HblurInPush {
     height: u32,
     gauss: [f32; 12],
 }
-push_constants!(HblurInPush, kernels::TRAIN_SSIM_HBLUR_IN);
+push_constants!(TRAIN_SSIM_HBLUR_IN, HblurInPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -85,7 +85,7 @@ struct StatsPush {
     height: u32,
     gauss: [f32; 12],
 }
-push_constants!(StatsPush, kernels::TRAIN_SSIM_STATS);
+push_constants!(TRAIN_SSIM_STATS, StatsPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -96,7 +96,7 @@ struct HblurBackPush {
     height: u32,
     gauss: [f32; 12],
 }
-push_constants!(HblurBackPush, kernels::TRAIN_SSIM_HBLUR_BACK);
+push_constants!(TRAIN_SSIM_HBLUR_BACK, HblurBackPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -111,7 +111,7 @@ struct GradPush {
     pad: u32,
     gauss: [f32; 12],
 }
-push_constants!(GradPush, kernels::TRAIN_SSIM_GRAD);
+push_constants!(TRAIN_SSIM_GRAD, GradPush);
 
 /// Scratch for images of up to `pixels` pixels.
 struct Scratch {

@@ -1,4 +1,4 @@
-//! The training loop (paper §3.2; DESIGN §4): one random training view per iteration,
+//! The training loop (paper §3.2; docs/ARCHITECTURE.md §4): one random training view per iteration,
 //! forward → losses → backward → Adam, and at the schedule's adaptive steps the layout
 //! changes (paper §3.2.2; `adapt_step.rs`, kernels and topology in [`crate::adapt`]):
 //! prune voxels whose max blend weight over every training view is below a ramped
@@ -22,20 +22,20 @@ use rand::Rng;
 
 use super::backward::{Backward, Gradients, Reduction};
 use super::config::{Schedule, TrainConfig};
-use super::init::Moments;
+use super::iteration::{IterPlan, IterWeights, Queued};
 use super::loss::{NormalLoss, PixelLoss};
+use super::optim::Moments;
 use super::optim::{Adam, Tv};
-use super::queue::{IterPlan, IterWeights, Queued};
 use super::ssim::Ssim;
 use super::views::TrainViews;
 use crate::adapt::stats::StatsPass;
 use crate::adapt::topology::Topology;
 use crate::camera::Camera;
 
+use crate::error::{Error, Result};
 use crate::gpu::{Context, Timestamps};
 use crate::raster::{FrameOutputs, FrameStats, RenderOptions, Renderer};
 use crate::scene::{Scene, SceneGpu};
-use crate::{Error, Result};
 
 pub use super::init::{
     bytes_per_voxel, root_extent, uniform_grid, voxel_budget, voxel_budget_source,

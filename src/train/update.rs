@@ -5,14 +5,14 @@
 use ash::vk;
 
 use super::backward::EntryLosses;
+use super::iteration::IterWeights;
 use super::loss::LossWeights;
 use super::optim::AdamConfig;
-use super::queue::IterWeights;
 use super::trainer::{StepLosses, Trainer};
 use crate::camera::Camera;
+use crate::error::{Error, Result};
 use crate::gpu::{recorder, Timestamps};
 use crate::raster::FrameStats;
-use crate::{Error, Result};
 
 impl Trainer {
     /// Records the update of the frame just recorded (`stats`: its stats, or what the

@@ -8,8 +8,8 @@
 //! is 2.4 GB, more than one allocation may be on most drivers (lavapipe: 2 GiB).
 
 use crate::data::Dataset;
+use crate::error::{Error, Result};
 use crate::gpu::{Buffer, Context};
-use crate::{Error, Result};
 
 /// Largest chunk [`TrainViews::upload`] allocates by default.
 pub const MAX_CHUNK_BYTES: u64 = 256 << 20;

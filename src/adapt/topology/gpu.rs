@@ -5,8 +5,8 @@
 use bytemuck::{Pod, Zeroable};
 
 use crate::error::Result;
-use crate::gpu::{kernels, Buffer, Context, Memory};
-use crate::push_constants;
+use crate::gpu::kernels::push_constants;
+use crate::gpu::{Buffer, Context, Memory};
 use crate::scan::PrefixScan;
 use crate::sort::RadixSort;
 
@@ -31,7 +31,7 @@ pub(super) struct CandidatesPush {
     pub(super) bits: u32,
     pub(super) planes: u32,
 }
-push_constants!(CandidatesPush, kernels::ADAPT_TOPOLOGY_CANDIDATES);
+push_constants!(ADAPT_TOPOLOGY_CANDIDATES, CandidatesPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -42,7 +42,7 @@ pub(super) struct HeadsPush {
     pub(super) count: u32,
     pub(super) pad: u32,
 }
-push_constants!(HeadsPush, kernels::ADAPT_DEDUP_HEADS);
+push_constants!(ADAPT_DEDUP_HEADS, HeadsPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -60,7 +60,7 @@ pub(super) struct MergePush {
     pub(super) bits: u32,
     pub(super) planes: u32,
 }
-push_constants!(MergePush, kernels::ADAPT_DEDUP_MERGE);
+push_constants!(ADAPT_DEDUP_MERGE, MergePush);
 
 /// Per-candidate device buffers with the sort and scan of the same capacity.
 pub(super) struct CandidateBuffers {
@@ -139,7 +139,7 @@ pub(super) struct GatherPush {
     pub(super) blocked: u32,
     pub(super) pad: u32,
 }
-push_constants!(GatherPush, kernels::ADAPT_GATHER_ROWS);
+push_constants!(ADAPT_GATHER_ROWS, GatherPush);
 
 pub(super) fn write_bytes(dst: &mut [u8], offset: u64, src: &[u8]) {
     let o = offset as usize;

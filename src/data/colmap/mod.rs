@@ -31,7 +31,7 @@ use std::path::{Path, PathBuf};
 pub use write::{write_bin, write_txt};
 
 use super::lens::CameraModel;
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// One COLMAP camera (intrinsics shared by the images that name it).
 #[derive(Clone, Debug, PartialEq)]

@@ -4,7 +4,7 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use super::Reconstruction;
-use crate::Result;
+use crate::error::Result;
 
 /// Writes `rec` as `cameras.bin`, `images.bin` and `points3D.bin` into `dir`.
 pub fn write_bin(dir: &Path, rec: &Reconstruction) -> Result<()> {

@@ -61,9 +61,9 @@ use super::params::HostOutputPush;
 use super::plan::Plan;
 use super::{FrameStats, HostFrame, RenderOptions, Renderer, STATS_WORDS};
 use crate::camera::Camera;
+use crate::error::{Error, Result};
 use crate::gpu::{glsl, recorder, Buffer, Context, GrowBuffer, Memory};
 use crate::scene::SceneGpu;
-use crate::{Error, Result};
 
 mod view;
 pub use view::{matrices_for, DepthConvention, HostView};
@@ -468,7 +468,7 @@ impl HostRenderer {
         slot.renderer.k.host_output.dispatch_1d(
             cmd,
             &HostOutputPush {
-                params: slot.renderer.params.address(),
+                frame: slot.renderer.params.address(),
                 color: slot.color.address(),
                 depth: if write.is_some() {
                     slot.depth_out.address()

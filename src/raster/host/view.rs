@@ -4,7 +4,7 @@
 use glam::{DMat4, DVec3, DVec4, Mat4};
 
 use crate::camera::Camera;
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// The host's camera: matrices in its conventions.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -1,0 +1,122 @@
+//! The two kernels that run a digit pass of the sort, and which one a device takes.
+
+use super::SORT_TILE;
+use crate::gpu::{kernels, DeviceInfo, KernelSource};
+
+/// Keys per invocation of the coalesced pass (KPT in build.rs's variant table).
+const COALESCED_KPT: u32 = 15;
+/// The smallest tile of any pass (sizes the look-back status words).
+pub(super) const MIN_TILE: u32 = 128 * COALESCED_KPT;
+
+/// Which kernel runs the digit passes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum SortPass {
+    /// `onesweep.glsl`: 128 invocations × 16 keys, each key written straight to its
+    /// destination. The fastest on lavapipe.
+    Direct,
+    /// `onesweep_coalesced.glsl` with 128 invocations × 15 keys: any subgroup size.
+    Coalesced128,
+    /// `onesweep_coalesced.glsl` with 256 invocations × 15 keys: subgroups of ≥ 16
+    /// lanes and ~34 KiB of shared memory.
+    Coalesced256,
+}
+
+impl SortPass {
+    /// Every pass kernel, for tests and `bench sort --pass`.
+    pub const ALL: [SortPass; 3] = [
+        SortPass::Direct,
+        SortPass::Coalesced128,
+        SortPass::Coalesced256,
+    ];
+
+    /// The pass for a device: the direct one on CPU devices (a write there is a store
+    /// to the CPU's caches; staging the tile only adds work), else the widest coalesced
+    /// one the subgroup size and shared memory allow.
+    pub fn for_device(info: &DeviceInfo) -> SortPass {
+        if info.is_cpu {
+            SortPass::Direct
+        } else if SortPass::Coalesced256.supported(info) {
+            SortPass::Coalesced256
+        } else if SortPass::Coalesced128.supported(info) {
+            SortPass::Coalesced128
+        } else {
+            SortPass::Direct
+        }
+    }
+
+    /// Name in reports and on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            SortPass::Direct => "direct",
+            SortPass::Coalesced128 => "c128",
+            SortPass::Coalesced256 => "c256",
+        }
+    }
+
+    fn invocations(self) -> u32 {
+        match self {
+            SortPass::Direct | SortPass::Coalesced128 => 128,
+            SortPass::Coalesced256 => 256,
+        }
+    }
+
+    /// Keys per workgroup (tile).
+    pub fn tile(self) -> u32 {
+        match self {
+            SortPass::Direct => SORT_TILE,
+            _ => self.invocations() * COALESCED_KPT,
+        }
+    }
+
+    /// Smallest subgroup size the kernel supports (its shared histogram rows).
+    pub(super) fn min_subgroup(self) -> u32 {
+        match self {
+            SortPass::Direct | SortPass::Coalesced128 => 8,
+            SortPass::Coalesced256 => 16,
+        }
+    }
+
+    /// Bytes of shared memory the kernel declares (mirrors the arrays of its GLSL).
+    pub fn shared_bytes(self) -> u32 {
+        let wg = self.invocations();
+        let max_sg = wg / self.min_subgroup();
+        let words = match self {
+            // s_tile, s_rows, s_base, s_fallback, lb_vote
+            SortPass::Direct => 1 + max_sg * 256 + 2 * 256 + 1,
+            // s_tile, s_mem, s_local, s_base, s_part, s_jmax, lb_vote
+            _ => 1 + (max_sg * 256).max(2 * self.tile()) + 2 * 256 + max_sg + 2,
+        };
+        words * 4
+    }
+
+    /// Whether the device can run it.
+    pub fn supported(self, info: &DeviceInfo) -> bool {
+        info.subgroup_size >= self.min_subgroup()
+            && self.shared_bytes() <= info.max_compute_shared_memory_size
+            && self.invocations() <= info.max_compute_work_group_invocations
+    }
+
+    pub(super) fn kernels(self) -> [&'static KernelSource; 2] {
+        match self {
+            SortPass::Direct => [&kernels::SORT_ONESWEEP, &kernels::SORT_ONESWEEP_K32],
+            SortPass::Coalesced128 => [
+                &kernels::SORT_ONESWEEP_C128,
+                &kernels::SORT_ONESWEEP_C128_K32,
+            ],
+            SortPass::Coalesced256 => [
+                &kernels::SORT_ONESWEEP_C256,
+                &kernels::SORT_ONESWEEP_C256_K32,
+            ],
+        }
+    }
+}
+
+impl std::str::FromStr for SortPass {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        SortPass::ALL
+            .into_iter()
+            .find(|p| p.name() == s)
+            .ok_or_else(|| format!("unknown sort pass `{s}`: one of direct, c128, c256"))
+    }
+}
