@@ -1,328 +1,15 @@
-//! Checkpoint I/O: a [`Scene`] as one [safetensors](https://github.com/huggingface/safetensors)
-//! file, readable by any safetensors library or by hand.
-//!
-//! # Layout
-//!
-//! ```text
-//! [8 bytes]  N: length of the JSON header, unsigned 64-bit little-endian
-//! [N bytes]  JSON header (UTF-8), padded with spaces so that the data starts at a
-//!            multiple of 8 bytes from the start of the file
-//! [rest]     data buffer: the tensors' raw little-endian bytes, back to back, no gaps
-//! ```
-//!
-//! The header is one JSON object. `"__metadata__"` maps strings to strings; every other
-//! key is a tensor: `{"dtype": "U64"|"U8"|"F32", "shape": [..], "data_offsets": [begin,
-//! end]}`, offsets in bytes relative to the start of the data buffer (`end` exclusive).
-//! Tensors are row-major (C order). With `V` voxels, `G` grid points and SH degree `D`:
-//!
-//! | tensor         | dtype | shape                | content                                    |
-//! |----------------|-------|----------------------|--------------------------------------------|
-//! | `octpath`      | U64   | `[V]`                | Morton code per voxel (see [`crate::scene`]) |
-//! | `octlevel`     | U8    | `[V]`                | octree level per voxel, 1..=16             |
-//! | `geo_grid_pts` | F32   | `[G]`                | raw density per grid point                 |
-//! | `sh0`          | F32   | `[V, 3]`             | degree-0 SH per voxel, RGB                 |
-//! | `shs`          | F32   | `[V, (D+1)²−1, 3]`   | higher-degree SH (`[V, 0, 3]`, empty, for D = 0) |
-//!
-//! `octpath` holds 3 bits per level (`x<<2 | y<<1 | z`), level 1 in bits 45..48, all bits
-//! below the voxel's own level zero. A voxel at level `l` with index `(i, j, k)` covers
-//! `[i, i+1] × [j, j+1] × [k, k+1] · 2^(16−l)` in integer coordinates of the finest grid
-//! (0..=65536 per axis). The grid points are the *unique* corners of all voxels, and
-//! `geo_grid_pts` lists their densities ordered by ascending key `x<<34 | y<<17 | z`
-//! (integer finest-grid coordinates); a voxel's 8 corner densities are found by
-//! computing its corner keys and binary-searching them (e.g. `np.searchsorted`).
-//!
-//! Metadata (all values are strings, as safetensors requires):
-//!
-//! | key            | value                                                       |
-//! |----------------|-------------------------------------------------------------|
-//! | `format`       | `svraster-vk/1`                                             |
-//! | `scene_center` | JSON array `[x,y,z]`: world centre of the root cube         |
-//! | `scene_extent` | number: full edge length of the root cube in world units   |
-//! | `sh_degree`    | `0`, `1`, `2` or `3`                                        |
-//! | `background`   | JSON array `[r,g,b]`: background colour                     |
-//! | `supersample`  | number in [1, 8]: default render supersampling (optional: 1) |
-//! | `world_center` | JSON array `[x,y,z]` (optional: `[0,0,0]`); with `world_scale` (optional: 1) the capture's frame: model = (world − world_center) / world_scale; cameras of the capture are mapped so before rendering, depths scale back by `world_scale` |
-//! | `world_scale`  | number > 0 (optional: 1), written as f64 text               |
-//!
-//! | `quantized`    | `kmeans8` (optional): an 8-bit file, see below              |
-//!
-//! An 8-bit quantized checkpoint ([`save_quantized`], metadata `quantized` = `kmeans8`)
-//! replaces `geo_grid_pts`, `sh0` and `shs` by U8 codes of the same shapes
-//! (`geo_grid_pts_q`, `sh0_q`, `shs_q`) and per-channel codebooks F32 `[channels, 256]`
-//! (`geo_grid_pts_codebook` with 1 channel, `sh0_codebook` with 3, `shs_codebook` with
-//! `3·((D+1)²−1)` in `shs`'s (coefficient, rgb) order); value = `codebook[channel][code]`.
-//! [`load`] returns the dequantized scene.
-//!
-//! Numbers are written in the shortest form that reads back as the identical `f32`.
-//! Other metadata keys are ignored on load. Loading is strict: unknown tensors, gaps or
-//! overlaps in the data buffer, non-finite values, out-of-range levels, stray path bits,
-//! overlapping voxels or a grid-point count that does not match the voxels are errors.
-//!
-//! # Reading it from Python with only `json` and `numpy`
-//!
-//! ```python
-//! import json, numpy as np
-//! def load_svraster(path):
-//!     raw = open(path, "rb").read()
-//!     n = int.from_bytes(raw[:8], "little")
-//!     header = json.loads(raw[8:8 + n])
-//!     meta = header.pop("__metadata__")  # strings; json.loads(meta["scene_center"]) etc.
-//!     dt = {"U64": "<u8", "U8": "u1", "F32": "<f4"}
-//!     t = {k: np.frombuffer(raw[8 + n + v["data_offsets"][0]:8 + n + v["data_offsets"][1]],
-//!                           dtype=dt[v["dtype"]]).reshape(v["shape"]) for k, v in header.items()}
-//!     return meta, t  # t["octpath"], t["octlevel"], t["geo_grid_pts"], t["sh0"], t["shs"]
-//! ```
-
-use std::fs;
-use std::io::{self, Write};
-use std::path::Path;
+//! Reading a checkpoint: the safetensors framing parsed by our own reader (stricter than
+//! the `safetensors` crate: duplicate keys are refused and every error names the tensor
+//! or key), in steps — header, metadata, tensor entries, data layout, decoding, voxels.
 
 use serde::de::{Deserialize, Deserializer, MapAccess, Visitor};
 use serde_json::Value;
 
-use super::{sh_coeffs, Scene, MAX_SH_DEGREE};
+use super::{FORMAT, MAX_HEADER_BYTES, QTENSORS, QUANTIZED, TENSORS};
 use crate::error::{Error, Result};
+use crate::scene::{quantize, sh_coeffs, Scene, WorldFrame, MAX_SH_DEGREE};
 
-/// Value of the `format` metadata key.
-pub const FORMAT: &str = "svraster-vk/1";
-
-/// Largest accepted JSON header (the same bound the safetensors library uses).
-pub const MAX_HEADER_BYTES: u64 = 100_000_000;
-
-/// Tensor names, dtypes and element sizes, in the order they are laid out in the data
-/// buffer (8-byte elements first, so every tensor starts aligned to its element size).
-const TENSORS: [(&str, &str, usize); 5] = [
-    ("octpath", "U64", 8),
-    ("geo_grid_pts", "F32", 4),
-    ("sh0", "F32", 4),
-    ("shs", "F32", 4),
-    ("octlevel", "U8", 1),
-];
-
-/// Value of the `quantized` metadata key of an 8-bit quantized checkpoint.
-pub const QUANTIZED: &str = "kmeans8";
-
-/// The tensors of a quantized checkpoint (metadata `quantized` = [`QUANTIZED`]): per
-/// channel a codebook of 256 values (`*_codebook`, F32 `[channels, 256]`) and per value
-/// the U8 index of its entry (`*_q`, the shape of the full-precision tensor).
-const QTENSORS: [(&str, &str, usize); 8] = [
-    ("octpath", "U64", 8),
-    ("geo_grid_pts_codebook", "F32", 4),
-    ("sh0_codebook", "F32", 4),
-    ("shs_codebook", "F32", 4),
-    ("geo_grid_pts_q", "U8", 1),
-    ("sh0_q", "U8", 1),
-    ("shs_q", "U8", 1),
-    ("octlevel", "U8", 1),
-];
-
-/// Writes `scene` to `path` atomically: the checkpoint goes to a temporary file in the
-/// same directory, is flushed to disk, then renamed over `path`. On any error the
-/// temporary file is removed and an existing file at `path` is left untouched. The scene
-/// is validated first; an invalid scene (e.g. containing NaN) is refused.
-pub fn save(scene: &Scene, path: &Path) -> Result<()> {
-    let header = encode_header(scene)?;
-    crate::fsio::write_atomic_with(path, |w| {
-        w.write_all(&header)?;
-        write_data(scene, w)
-    })
-    .map_err(|e| match e {
-        Error::Io { path, error } => Error::Io {
-            path,
-            error: io::Error::new(error.kind(), format!("cannot save the checkpoint: {error}")),
-        },
-        e => e,
-    })
-}
-
-/// Writes `scene` 8-bit quantized (see [`crate::scene::quantize`]; ~70 % smaller) to
-/// `path`, atomically like [`save`]. [`load`] reads it back as a full-precision scene
-/// whose values are the codebook entries.
-pub fn save_quantized(scene: &Scene, path: &Path) -> Result<()> {
-    let bytes = to_bytes_quantized(scene)?;
-    crate::fsio::write_atomic(path, &bytes)
-}
-
-/// The quantized checkpoint file's bytes for `scene` (validated first).
-pub fn to_bytes_quantized(scene: &Scene) -> Result<Vec<u8>> {
-    use super::quantize::{quantize_channels, CODES};
-    let k = scene.shs_per_voxel();
-    let (geo_b, geo_q) = quantize_channels(&scene.geo, 1);
-    let (sh0_b, sh0_q) = quantize_channels(bytemuck::cast_slice(&scene.sh0), 3);
-    let (shs_b, shs_q) = quantize_channels(&scene.shs, 3 * k);
-    let n = scene.num_voxels();
-    let m = scene.num_grid_points();
-    let shapes: [(Vec<usize>, usize); 8] = [
-        (vec![n], n * 8),
-        (vec![1, CODES], CODES * 4),
-        (vec![3, CODES], 3 * CODES * 4),
-        (vec![3 * k, CODES], 3 * k * CODES * 4),
-        (vec![m], m),
-        (vec![n, 3], 3 * n),
-        (vec![n, k, 3], 3 * k * n),
-        (vec![n], n),
-    ];
-    let mut out = encode_header_for(scene, &QTENSORS, &shapes, true)?;
-    for v in &scene.octpath {
-        out.extend_from_slice(&v.to_le_bytes());
-    }
-    for book in geo_b.iter().chain(&sh0_b).chain(&shs_b) {
-        for v in book {
-            out.extend_from_slice(&v.to_le_bytes());
-        }
-    }
-    out.extend_from_slice(&geo_q);
-    out.extend_from_slice(&sh0_q);
-    out.extend_from_slice(&shs_q);
-    out.extend_from_slice(&scene.octlevel);
-    Ok(out)
-}
-
-/// Reads and fully validates a checkpoint written by [`save`] (or any tool following the
-/// format in the module documentation).
-pub fn load(path: &Path) -> Result<Scene> {
-    let bytes = fs::read(path).map_err(|error| Error::Io {
-        path: path.display().to_string(),
-        error,
-    })?;
-    parse(&bytes, &path.display().to_string())
-}
-
-/// The checkpoint file's bytes for `scene` (validated first).
-pub fn to_bytes(scene: &Scene) -> Result<Vec<u8>> {
-    let header = encode_header(scene)?;
-    let mut out = Vec::with_capacity(header.len() + data_len(scene));
-    out.extend_from_slice(&header);
-    write_data(scene, &mut out).map_err(|error| Error::Io {
-        path: "<memory>".into(),
-        error,
-    })?;
-    Ok(out)
-}
-
-/// Parses and fully validates checkpoint bytes (see [`load`]).
-pub fn from_bytes(bytes: &[u8]) -> Result<Scene> {
-    parse(bytes, "<memory>")
-}
-
-// ---------------------------------------------------------------------------------------
-// Writing
-
-/// Shapes and byte sizes of the tensors, in [`TENSORS`] order.
-fn shapes(scene: &Scene) -> [(Vec<usize>, usize); 5] {
-    let n = scene.num_voxels();
-    let k = scene.shs_per_voxel();
-    let m = scene.num_grid_points();
-    [
-        (vec![n], n * 8),
-        (vec![m], m * 4),
-        (vec![n, 3], n * 12),
-        (vec![n, k, 3], n * k * 12),
-        (vec![n], n),
-    ]
-}
-
-fn data_len(scene: &Scene) -> usize {
-    shapes(scene).iter().map(|s| s.1).sum()
-}
-
-/// Validates the scene and returns the length prefix plus the padded JSON header.
-fn encode_header(scene: &Scene) -> Result<Vec<u8>> {
-    encode_header_for(scene, &TENSORS, &shapes(scene), false)
-}
-
-/// [`encode_header`] for a tensor table and its shapes and byte sizes.
-fn encode_header_for(
-    scene: &Scene,
-    table: &[(&str, &str, usize)],
-    shapes: &[(Vec<usize>, usize)],
-    quantized: bool,
-) -> Result<Vec<u8>> {
-    scene.validate().map_err(|e| match e {
-        Error::Invalid(m) => Error::Invalid(format!("refusing to save an invalid scene: {m}")),
-        e => e,
-    })?;
-    let mut header = serde_json::Map::new();
-    let mut meta = serde_json::Map::new();
-    let vec3 = |v: [f32; 3]| format!("[{},{},{}]", num(v[0]), num(v[1]), num(v[2]));
-    meta.insert("format".into(), FORMAT.into());
-    meta.insert("scene_center".into(), vec3(scene.center).into());
-    meta.insert("scene_extent".into(), num(scene.extent).into());
-    meta.insert("sh_degree".into(), scene.sh_degree.to_string().into());
-    meta.insert("background".into(), vec3(scene.background).into());
-    meta.insert("supersample".into(), num(scene.supersample).into());
-    if quantized {
-        meta.insert("quantized".into(), QUANTIZED.into());
-    }
-    if !scene.world.is_identity() {
-        let c = scene.world.center;
-        meta.insert(
-            "world_center".into(),
-            format!("[{:?},{:?},{:?}]", c[0], c[1], c[2]).into(),
-        );
-        meta.insert(
-            "world_scale".into(),
-            format!("{:?}", scene.world.scale).into(),
-        );
-    }
-    header.insert("__metadata__".into(), Value::Object(meta));
-    let mut offset = 0usize;
-    for ((name, dtype, _), (shape, bytes)) in table.iter().zip(shapes) {
-        header.insert(
-            (*name).into(),
-            serde_json::json!({
-                "dtype": dtype,
-                "shape": shape,
-                "data_offsets": [offset, offset + *bytes],
-            }),
-        );
-        offset += *bytes;
-    }
-    let mut json = serde_json::to_vec(&Value::Object(header))
-        .map_err(|e| Error::Invalid(format!("cannot encode the checkpoint header: {e}")))?;
-    while (8 + json.len()) % 8 != 0 {
-        json.push(b' ');
-    }
-    let mut out = Vec::with_capacity(8 + json.len());
-    out.extend_from_slice(&(json.len() as u64).to_le_bytes());
-    out.extend_from_slice(&json);
-    Ok(out)
-}
-
-/// Shortest decimal text that parses back to the identical `f32` (a valid JSON number):
-/// plain notation for ordinary magnitudes, exponent notation for tiny or huge ones.
-fn num(v: f32) -> String {
-    let a = v.abs();
-    if a != 0.0 && !(1e-5..1e16).contains(&a) {
-        format!("{v:e}")
-    } else {
-        format!("{v}")
-    }
-}
-
-/// Writes the data buffer (tensors in [`TENSORS`] order, little-endian).
-fn write_data<W: Write + ?Sized>(scene: &Scene, w: &mut W) -> io::Result<()> {
-    if cfg!(target_endian = "little") {
-        w.write_all(bytemuck::cast_slice(&scene.octpath))?;
-        w.write_all(bytemuck::cast_slice(&scene.geo))?;
-        w.write_all(bytemuck::cast_slice(&scene.sh0))?;
-        w.write_all(bytemuck::cast_slice(&scene.shs))?;
-    } else {
-        for v in &scene.octpath {
-            w.write_all(&v.to_le_bytes())?;
-        }
-        let sh0: &[f32] = bytemuck::cast_slice(&scene.sh0);
-        for v in scene.geo.iter().chain(sh0).chain(&scene.shs) {
-            w.write_all(&v.to_le_bytes())?;
-        }
-    }
-    w.write_all(&scene.octlevel)
-}
-
-// ---------------------------------------------------------------------------------------
-// Reading
-
-fn parse(bytes: &[u8], name: &str) -> Result<Scene> {
+pub(super) fn parse(bytes: &[u8], name: &str) -> Result<Scene> {
     parse_inner(bytes).map_err(|m| Error::Invalid(format!("checkpoint {name}: {m}")))
 }
 
@@ -377,8 +64,19 @@ struct TensorInfo {
 
 type Msg<T> = std::result::Result<T, String>;
 
+/// Reads a checkpoint, every step checked with a message naming what is wrong.
 fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
-    // --- length prefix and header JSON
+    let (top, data) = header(bytes)?;
+    let meta = metadata(&top)?;
+    let t = tensors(&top, &meta, data)?;
+    check_layout(&t, data)?;
+    let d = decode(&t, &meta, data)?;
+    build_scene(meta, d)
+}
+
+/// Step 1: the length prefix and the header JSON (no duplicate keys); returns it and the
+/// data buffer after it.
+fn header(bytes: &[u8]) -> Msg<(Entries<Entries<Value>>, &[u8])> {
     if bytes.len() < 8 {
         return Err(format!(
             "file is {} bytes, too short for the 8-byte header length",
@@ -405,9 +103,25 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
     let top: Entries<Entries<Value>> =
         serde_json::from_str(text).map_err(|e| format!("header is malformed JSON: {e}"))?;
     top.check_unique("header")?;
-    let data = &bytes[8 + n..];
+    Ok((top, &bytes[8 + n..]))
+}
 
-    // --- metadata
+/// What the metadata says (step 2).
+struct Meta {
+    quantized: bool,
+    /// The tensors the file must hold: [`TENSORS`] or [`QTENSORS`].
+    table: &'static [(&'static str, &'static str, usize)],
+    sh_degree: u32,
+    center: [f32; 3],
+    extent: f32,
+    background: [f32; 3],
+    supersample: f32,
+    world: WorldFrame,
+}
+
+/// Step 2: the metadata (every value a string, the format, the scene's frame and
+/// options), and no tensor the format does not know.
+fn metadata(top: &Entries<Entries<Value>>) -> Msg<Meta> {
     let meta = top
         .get("__metadata__")
         .ok_or("header has no `__metadata__` (not an svraster checkpoint?)")?;
@@ -435,7 +149,8 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
             }
         },
     };
-    let table: &[(&str, &str, usize)] = if quantized { &QTENSORS } else { &TENSORS };
+    let table: &'static [(&'static str, &'static str, usize)] =
+        if quantized { &QTENSORS } else { &TENSORS };
     for (key, _) in &top.0 {
         if key != "__metadata__" && !table.iter().any(|t| t.0 == key) {
             return Err(format!(
@@ -481,7 +196,7 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
             "metadata `supersample` is {supersample}, must be in [1, 8]"
         ));
     }
-    let world = super::WorldFrame {
+    let world = WorldFrame {
         center: match meta.get("world_center") {
             None => [0.0; 3],
             Some(_) => parse_vec3::<f64>("world_center", meta_str("world_center")?)?,
@@ -497,8 +212,57 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
             world.scale
         ));
     }
+    Ok(Meta {
+        quantized,
+        table,
+        sh_degree,
+        center,
+        extent,
+        background,
+        supersample,
+        world,
+    })
+}
 
-    // --- tensor entries
+/// The tensors' header entries, in the order of [`Meta::table`] (step 3).
+struct Tensors {
+    table: &'static [(&'static str, &'static str, usize)],
+    infos: Vec<TensorInfo>,
+    /// SH coefficients per voxel and colour channel beyond degree 0.
+    k: u64,
+}
+
+impl Tensors {
+    fn info(&self, name: &str) -> &TensorInfo {
+        &self.infos[self
+            .table
+            .iter()
+            .position(|t| t.0 == name)
+            .expect("in the table")]
+    }
+
+    /// The full-precision (or, quantized, the code) tensors of the geometry and colours.
+    fn values_infos(&self, quantized: bool) -> (&TensorInfo, &TensorInfo, &TensorInfo) {
+        if quantized {
+            (
+                self.info("geo_grid_pts_q"),
+                self.info("sh0_q"),
+                self.info("shs_q"),
+            )
+        } else {
+            (
+                self.info("geo_grid_pts"),
+                self.info("sh0"),
+                self.info("shs"),
+            )
+        }
+    }
+}
+
+/// Step 3: every tensor's entry (dtype, offsets within the data) and shape, consistent
+/// with the voxel count of `octpath` and the SH degree.
+fn tensors(top: &Entries<Entries<Value>>, meta: &Meta, data: &[u8]) -> Msg<Tensors> {
+    let (table, quantized, sh_degree) = (meta.table, meta.quantized, meta.sh_degree);
     let mut infos = Vec::with_capacity(table.len());
     for (name, dtype, _) in table {
         let entry = top
@@ -506,19 +270,15 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
             .ok_or_else(|| format!("tensor `{name}` is missing"))?;
         infos.push(tensor_info(name, dtype, entry, data.len() as u64)?);
     }
-    let info = |name: &str| {
-        &infos[table
-            .iter()
-            .position(|t| t.0 == name)
-            .expect("in the table")]
+    let t = Tensors {
+        table,
+        infos,
+        k: (sh_coeffs(sh_degree) - 1) as u64,
     };
+    let info = |name: &str| t.info(name);
     let (octpath_i, octlevel_i) = (info("octpath"), info("octlevel"));
-    let (geo_i, sh0_i, shs_i) = if quantized {
-        (info("geo_grid_pts_q"), info("sh0_q"), info("shs_q"))
-    } else {
-        (info("geo_grid_pts"), info("sh0"), info("shs"))
-    };
-    let k = (sh_coeffs(sh_degree) - 1) as u64;
+    let (geo_i, sh0_i, shs_i) = t.values_infos(quantized);
+    let k = t.k;
     let nv = match octpath_i.shape[..] {
         [nv] => nv,
         _ => return Err(shape_msg("octpath", &octpath_i.shape, "[N]")),
@@ -547,7 +307,7 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
     if geo_i.shape.len() != 1 {
         return Err(shape_msg(geo_name, &geo_i.shape, "[M]"));
     }
-    let codes = super::quantize::CODES as u64;
+    let codes = quantize::CODES as u64;
     if quantized {
         for (name, channels) in [
             ("geo_grid_pts_codebook", 1),
@@ -563,9 +323,14 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
             }
         }
     }
+    Ok(t)
+}
 
-    // --- data buffer: sizes, bounds, tiling
-    for ((name, _, esize), info) in table.iter().zip(&infos) {
+/// Step 4: each tensor's byte span matches its shape, and the tensors tile the data
+/// buffer exactly (no overlap, no gap).
+fn check_layout(t: &Tensors, data: &[u8]) -> Msg<()> {
+    let (table, infos) = (t.table, t.infos.as_slice());
+    for ((name, _, esize), info) in table.iter().zip(infos) {
         let size = info
             .shape
             .iter()
@@ -609,8 +374,26 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
             data.len() as u64 - pos
         ));
     }
+    Ok(())
+}
 
-    // --- decode
+/// The decoded arrays (step 5).
+struct Decoded {
+    octpath: Vec<u64>,
+    octlevel: Vec<u8>,
+    geo: Vec<f32>,
+    sh0: Vec<[f32; 3]>,
+    shs: Vec<f32>,
+}
+
+/// Step 5: the arrays, dequantized through their codebooks if quantized; every value
+/// finite.
+fn decode(t: &Tensors, meta: &Meta, data: &[u8]) -> Msg<Decoded> {
+    let quantized = meta.quantized;
+    let k = t.k;
+    let info = |name: &str| t.info(name);
+    let (octpath_i, octlevel_i) = (info("octpath"), info("octlevel"));
+    let (geo_i, sh0_i, shs_i) = t.values_infos(quantized);
     let slice = |info: &TensorInfo| &data[info.begin as usize..info.end as usize];
     let octpath: Vec<u64> = slice(octpath_i)
         .chunks_exact(8)
@@ -635,11 +418,11 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
                 flat[i]
             ));
         }
-        let books: Vec<[f32; super::quantize::CODES]> = flat
-            .chunks_exact(super::quantize::CODES)
+        let books: Vec<[f32; quantize::CODES]> = flat
+            .chunks_exact(quantize::CODES)
             .map(|c| c.try_into().expect("codebook rows"))
             .collect();
-        Ok(super::quantize::dequantize_channels(&books, slice(q)))
+        Ok(quantize::dequantize_channels(&books, slice(q)))
     };
     let geo = values("geo_grid_pts", geo_i)?;
     let sh0: Vec<[f32; 3]> = values("sh0", sh0_i)?
@@ -660,10 +443,34 @@ fn parse_inner(bytes: &[u8]) -> Msg<Scene> {
             shs[i]
         ));
     }
+    Ok(Decoded {
+        octpath,
+        octlevel,
+        geo,
+        sh0,
+        shs,
+    })
+}
 
-    // --- voxels
-    // Checks levels, path bits, overlap and duplicates once, and builds the unique,
-    // sorted grid points.
+/// Step 6: the voxels (levels, path bits, overlap and duplicates checked once), their
+/// unique sorted grid points, and the scene assembled and validated.
+fn build_scene(meta: Meta, d: Decoded) -> Msg<Scene> {
+    let Meta {
+        sh_degree,
+        center,
+        extent,
+        background,
+        supersample,
+        world,
+        ..
+    } = meta;
+    let Decoded {
+        octpath,
+        octlevel,
+        geo,
+        sh0,
+        shs,
+    } = d;
     let mut scene =
         Scene::from_voxels(center, extent, 0, octpath, octlevel, 0.0).map_err(|e| match e {
             Error::Invalid(m) => m,
