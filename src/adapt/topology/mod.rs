@@ -18,7 +18,7 @@
 //!    density — the voxel's own grid-point value, or for a child the parent's trilinear
 //!    interpolation at that corner (exactly the parent's value at the parent's own
 //!    corners) — and likewise for the geo Adam moments.
-//! 3. **GPU sort**: (key, candidate index) pairs by key with [`RadixSort`]. The key is
+//! 3. **GPU sort**: (key, candidate index) pairs by key with [`RadixSort`](crate::sort::RadixSort). The key is
 //!    the 51-bit grid key `x<<34 | y<<17 | z` compacted to the bits in use: at finest
 //!    level L every coordinate is a multiple of 2^(16−L) and at most 2^L, so
 //!    `x'<<2b | y'<<b | z'` with `c' = c >> (16−L)`, `b = L + 1` has the same order in
@@ -145,7 +145,7 @@ impl Topology {
     /// corner's density is the parent's trilinear interpolation at that corner (so at
     /// the parent's own corners it is exactly the parent's value). Grid points are
     /// rebuilt from the surviving voxels' corners on the GPU (sort of the candidate keys
-    /// with [`RadixSort`], duplicates averaged), and each voxel's corner indices come
+    /// with [`RadixSort`](crate::sort::RadixSort), duplicates averaged), and each voxel's corner indices come
     /// from that merge. Grid points no longer a corner of any voxel disappear.
     ///
     /// `moments`, when given, are carried like the parameters they belong to (pruned
