@@ -10,6 +10,9 @@ use std::collections::{BTreeMap, HashMap};
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+#[path = "glsl/variants.rs"]
+mod variants;
+
 fn main() {
     let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
     let glsl = root.join("glsl");
@@ -36,7 +39,7 @@ fn main() {
     // must have one layout in every kernel.
     let mut blocks: BTreeMap<String, (Block, String)> = BTreeMap::new();
     // (kernel path below glsl/ without extension, GLSL source): every .comp file, then the
-    // generated variants of the permutation table.
+    // generated variants of glsl/variants.rs.
     let mut sources: Vec<(String, String)> = Vec::new();
     for path in files
         .iter()
@@ -47,13 +50,16 @@ fn main() {
         let source = std::fs::read_to_string(path).expect("read shader");
         sources.push((rel_str.trim_end_matches(".comp").to_string(), source));
     }
-    for (name, body, defines) in variants() {
-        let mut source = String::from("#version 460\n");
-        for (k, v) in &defines {
-            let _ = writeln!(source, "#define {k} {v}");
+    let families = variants::families();
+    for f in &families {
+        for (name, defines) in variants::expand(f) {
+            let mut source = String::from("#version 460\n");
+            for (k, v) in &defines {
+                let _ = writeln!(source, "#define {k} {v}");
+            }
+            let _ = writeln!(source, "#include \"{}\"", f.body);
+            sources.push((name, source));
         }
-        let _ = writeln!(source, "#include \"{body}\"");
-        sources.push((name, source));
     }
     for (kernel, source) in &sources {
         let rel_str = format!("{kernel}.comp");
@@ -162,12 +168,13 @@ fn main() {
             .collect::<Vec<_>>()
             .join(", ")
     );
-    module.push_str(&push_checks(&pushes));
+    module.push_str(&push_checks(&pushes, &families));
+    module.push_str(&family_arrays(&families));
     std::fs::write(out_dir.join("kernels.rs"), module).unwrap();
     std::fs::write(out_dir.join("layouts.rs"), layouts_module(&blocks)).unwrap();
     let headers: Vec<&PathBuf> = files
         .iter()
-        .filter(|p| p.starts_with(glsl.join("lib")) && p.extension().is_some_and(|e| e == "glsl"))
+        .filter(|p| p.extension().is_some_and(|e| e == "glsl"))
         .collect();
     std::fs::write(
         out_dir.join("glsl_consts.rs"),
@@ -479,7 +486,7 @@ struct PushBlock {
 /// time that the `#[repr(C)]` Rust mirror of KERNEL's push-constant block has the block's
 /// size and each member as a field of the same name at the same offset, so a swapped
 /// pair of same-typed fields fails the build, not only a size change.
-fn push_checks(pushes: &[PushBlock]) -> String {
+fn push_checks(pushes: &[PushBlock], families: &[variants::Family]) -> String {
     let mut s = String::from(
         "\n/// Asserts at compile time that `$t` mirrors the push-constant block of the kernel\n\
          /// named first: the same size, and every member of the block as a field of the same\n\
@@ -511,7 +518,71 @@ fn push_checks(pushes: &[PushBlock]) -> String {
         }
         let _ = writeln!(s, "        }};\n    }};");
     }
+    // A family's arm checks every member.
+    for f in families {
+        let _ = writeln!(s, "    ({}_VARIANTS, $t:ty) => {{", f.name);
+        for (name, _) in variants::expand(f) {
+            let _ = writeln!(s, "        push_constants!({}, $t);", ident(&name));
+        }
+        let _ = writeln!(s, "    }};");
+    }
     s.push_str("}\npub(crate) use push_constants;\n");
+    s
+}
+
+/// A kernel's constant name in `kernels` from its path below glsl/.
+fn ident(path: &str) -> String {
+    path.replace(['/', '-', '.'], "_").to_uppercase()
+}
+
+/// Per family, its variants as a nested array in axis order (`kernels::<FAMILY>_VARIANTS`)
+/// and its members by name (`kernels::FAMILIES`, for the push-constant coverage test).
+fn family_arrays(families: &[variants::Family]) -> String {
+    let mut s = String::new();
+    let mut all = Vec::new();
+    for f in families {
+        let names: Vec<String> = variants::expand(f).iter().map(|(n, _)| ident(n)).collect();
+        let mut ty = String::from("&KernelSource");
+        for axis in f.axes.iter().rev() {
+            ty = format!("[{ty}; {}]", axis.len());
+        }
+        // Nest the flat, outermost-first list.
+        fn nest(items: &[String], dims: &[usize]) -> String {
+            if dims.is_empty() {
+                return format!("&{}", items[0]);
+            }
+            let step = items.len() / dims[0];
+            let parts: Vec<String> = (0..dims[0])
+                .map(|i| nest(&items[i * step..(i + 1) * step], &dims[1..]))
+                .collect();
+            format!("[{}]", parts.join(", "))
+        }
+        let dims: Vec<usize> = f.axes.iter().map(|a| a.len()).collect();
+        let _ = writeln!(
+            s,
+            "/// The `{}` variants of `glsl/{}` (glsl/variants.rs), outermost axis first.\n\
+             pub const {}_VARIANTS: {ty} = {};",
+            f.name,
+            f.body,
+            f.name,
+            nest(&names, &dims)
+        );
+        all.push(format!(
+            "(\"{}_VARIANTS\", &[{}])",
+            f.name,
+            names
+                .iter()
+                .map(|n| format!("&{n}"))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
+    let _ = writeln!(
+        s,
+        "/// Every family of variants and its members.\n\
+         pub const FAMILIES: &[(&str, &[&KernelSource])] = &[{}];",
+        all.join(", ")
+    );
     s
 }
 
@@ -547,7 +618,7 @@ fn layouts_module(blocks: &BTreeMap<String, (Block, String)>) -> String {
     s
 }
 
-/// `glsl_consts.rs`: every integer constant of the shared headers (`glsl/lib/*.glsl`:
+/// `glsl_consts.rs`: every integer constant of the GLSL headers and bodies (`glsl/**/*.glsl`:
 /// top-level `const uint NAME = 3u[, NAME2 = 4u …];` and `#define NAME 3u`) as a Rust
 /// `pub const NAME: u32`, so stat slots, flags, channel indices and strides are written
 /// once, in GLSL. A name defined twice with different values fails the build.
@@ -602,143 +673,9 @@ fn constants_module(glsl: &Path, headers: &[&PathBuf]) -> String {
             }
         }
     }
-    let mut s = String::from("// @generated by build.rs from glsl/lib/*.glsl — do not edit.\n");
+    let mut s = String::from("// @generated by build.rs from glsl/**/*.glsl — do not edit.\n");
     for (n, (v, file)) in &consts {
         let _ = writeln!(s, "/// `{n}` in glsl/{file}.\npub const {n}: u32 = {v};");
     }
     s
-}
-
-/// The permutation table: kernels compiled from one body in `glsl/lib/` with `#define`s
-/// (no stub `.comp` files). Name → body, defines.
-///
-/// - `raster/composite_k{K}[_maxw|_counters][_nonormal]`: forward compositing with K
-///   samples per segment; `_maxw` also folds per-voxel max blend weights (the adaptive
-///   statistics pass only); `_counters` also counts the walk's work (`bench --json`);
-///   `_nonormal` for frames without a normal image (`FrameOutputs`).
-/// - `train/backward_k{K}[_cas|_det][_counters|_nonormal]`: its backward; `_cas` adds
-///   floats with a compare-and-swap loop (devices without float atomics), `_det` writes
-///   per-entry records for the ordered reduction (`--deterministic`); `_nonormal` for
-///   frames without a normal image.
-/// - `train/tv[_cas|_det]`, `train/voxel_backward[_cas|_det]`: TV and the per-voxel
-///   backward, with native float atomic adds, (`_cas`) a compare-and-swap loop, or
-///   (`_det`) plain per-voxel-corner writes for the ordered reduction.
-/// - `sort/histogram[_k32]`, `sort/onesweep[_k32]`: the radix sort's digit histogram
-///   and pass over u64 keys, or (`_k32`) u32 keys for a sort whose bits all lie below 32.
-/// - `sort/onesweep_c{256,128}[_k32]`: the pass with coalesced writes (GPUs), 256
-///   invocations for subgroups of ≥ 16 lanes, 128 for any size.
-fn variants() -> Vec<Variant> {
-    variant_table()
-}
-
-/// A generated kernel: path below glsl/ without extension, body in glsl/lib/, defines.
-type Variant = (String, &'static str, Vec<(&'static str, String)>);
-
-fn variant_table() -> Vec<Variant> {
-    let mut v = Vec::new();
-    // Radix sort passes over u64 keys, or (`_k32`) u32 keys.
-    for (body, name) in [
-        ("sort_histogram.glsl", "sort/histogram"),
-        ("onesweep.glsl", "sort/onesweep"),
-    ] {
-        v.push((name.to_string(), body, vec![]));
-        v.push((
-            format!("{name}_k32"),
-            body,
-            vec![("KEY32", "1".to_string())],
-        ));
-    }
-    // The GPU pass (coalesced writes through shared memory): 256 invocations for
-    // subgroups of 16 lanes or more, 128 for any subgroup size (8-lane devices).
-    for (wg, min_sg) in [(256, 16), (128, 8)] {
-        for (suffix, key32) in [("", false), ("_k32", true)] {
-            let mut d = vec![
-                ("WG", wg.to_string()),
-                ("KPT", "15".to_string()),
-                ("MIN_SG", min_sg.to_string()),
-            ];
-            if key32 {
-                d.push(("KEY32", "1".to_string()));
-            }
-            v.push((
-                format!("sort/onesweep_c{wg}{suffix}"),
-                "onesweep_coalesced.glsl",
-                d,
-            ));
-        }
-    }
-    // Float adds: native atomics (VK_EXT_shader_atomic_float) or a CAS loop (any device).
-    for (body, name) in [
-        ("tv.glsl", "train/tv"),
-        ("voxel_backward.glsl", "train/voxel_backward"),
-    ] {
-        v.push((
-            name.to_string(),
-            body,
-            vec![("FLOAT_ATOMICS", "1".to_string())],
-        ));
-        v.push((format!("{name}_cas"), body, vec![]));
-        v.push((
-            format!("{name}_det"),
-            body,
-            vec![("DETERMINISTIC", "1".to_string())],
-        ));
-    }
-    for k in 1..=3 {
-        for (suffix, mode) in [
-            ("", None),
-            ("_maxw", Some("TRACK_MAXW")),
-            ("_counters", Some("COUNTERS")),
-        ] {
-            let mut d = vec![("N_SAMP", k.to_string())];
-            if let Some(m) = mode {
-                d.push((m, "1".into()));
-            }
-            v.push((
-                format!("raster/composite_k{k}{suffix}"),
-                "composite.glsl",
-                d.clone(),
-            ));
-            if mode != Some("COUNTERS") {
-                d.push(("NO_NORMALS", "1".into()));
-                v.push((
-                    format!("raster/composite_k{k}{suffix}_nonormal"),
-                    "composite.glsl",
-                    d,
-                ));
-            }
-        }
-        for (reduction, define) in [
-            ("", Some("FLOAT_ATOMICS")),
-            ("_cas", None),
-            ("_det", Some("DETERMINISTIC")),
-        ] {
-            for counters in [false, true] {
-                let mut d = vec![("N_SAMP", k.to_string())];
-                if let Some(m) = define {
-                    d.push((m, "1".into()));
-                }
-                if counters {
-                    d.push(("COUNTERS", "1".into()));
-                }
-                v.push((
-                    format!(
-                        "train/backward_k{k}{reduction}{}",
-                        if counters { "_counters" } else { "" }
-                    ),
-                    "backward.glsl",
-                    d.clone(),
-                ));
-                if !counters {
-                    d.push(("NO_NORMALS", "1".into()));
-                    v.push((
-                        format!("train/backward_k{k}{reduction}_nonormal"),
-                        "backward.glsl",
-                        d,
-                    ));
-                }
-            }
-        }
-    }
-    v
 }

@@ -23,6 +23,25 @@ pub struct KernelSource {
     pub push_size: u32,
 }
 
+/// The pipelines of a family of variants (`kernels::<FAMILY>_VARIANTS`, two axes), in
+/// the same order.
+pub fn kernel_grid<const A: usize, const B: usize>(
+    ctx: &Context,
+    sources: &[[&'static KernelSource; B]; A],
+) -> Result<[[Kernel; B]; A]> {
+    let mut rows = Vec::with_capacity(A);
+    for row in sources {
+        let mut ks = Vec::with_capacity(B);
+        for s in row {
+            ks.push(Kernel::new(ctx, s)?);
+        }
+        rows.push(
+            <[Kernel; B]>::try_from(ks).unwrap_or_else(|_| unreachable!("B kernels per row")),
+        );
+    }
+    Ok(<[[Kernel; B]; A]>::try_from(rows).unwrap_or_else(|_| unreachable!("A rows")))
+}
+
 /// A compute pipeline and its layout.
 pub struct Kernel {
     inner: Arc<Inner>,
@@ -201,8 +220,11 @@ impl LazyKernel {
 
 #[cfg(test)]
 mod tests {
+    use super::KernelSource;
+
     /// Every kernel with push constants has its Rust mirror checked by
-    /// `push_constants!(KERNEL, Mirror)` somewhere in src/ (build.rs generates the
+    /// `push_constants!(KERNEL, Mirror)` or `push_constants!(FAMILY_VARIANTS, Mirror)`
+    /// somewhere in src/ (build.rs generates the
     /// checks; this makes sure none is left out when a kernel or variant is added).
     #[test]
     fn every_push_block_has_a_checked_mirror() {
@@ -221,11 +243,20 @@ mod tests {
             &std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("src"),
             &mut src,
         );
-        let missing: Vec<String> = crate::gpu::kernels::ALL
+        let checked = |k: &KernelSource| {
+            let ident = k.name.replace(['/', '-', '.'], "_").to_uppercase();
+            src.contains(&format!("push_constants!({ident},"))
+                || crate::gpu::kernels::FAMILIES
+                    .iter()
+                    .any(|(family, members)| {
+                        src.contains(&format!("push_constants!({family},"))
+                            && members.iter().any(|m| m.name == k.name)
+                    })
+        };
+        let missing: Vec<&str> = crate::gpu::kernels::ALL
             .iter()
-            .filter(|k| k.push_size > 0)
-            .map(|k| k.name.replace(['/', '-', '.'], "_").to_uppercase())
-            .filter(|ident| !src.contains(&format!("push_constants!({ident},")))
+            .filter(|k| k.push_size > 0 && !checked(k))
+            .map(|k| k.name)
             .collect();
         assert!(
             missing.is_empty(),

@@ -199,35 +199,9 @@ impl Renderer {
             setup: Kernel::new(ctx, &kernels::RASTER_FRAME_SETUP)?,
             emit: Kernel::new(ctx, &kernels::RASTER_EMIT_KEYS)?,
             ranges_k: Kernel::new(ctx, &kernels::RASTER_TILE_RANGES)?,
-            composite: [
-                [
-                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K1)?,
-                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K2)?,
-                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K3)?,
-                ],
-                [
-                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K1_MAXW)?,
-                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K2_MAXW)?,
-                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K3_MAXW)?,
-                ],
-                [
-                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K1_COUNTERS)?,
-                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K2_COUNTERS)?,
-                    Kernel::new(ctx, &kernels::RASTER_COMPOSITE_K3_COUNTERS)?,
-                ],
-            ],
-            composite_nonormal: [
-                [
-                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K1_NONORMAL),
-                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K2_NONORMAL),
-                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K3_NONORMAL),
-                ],
-                [
-                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K1_MAXW_NONORMAL),
-                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K2_MAXW_NONORMAL),
-                    LazyKernel::new(&kernels::RASTER_COMPOSITE_K3_MAXW_NONORMAL),
-                ],
-            ],
+            composite: crate::gpu::kernel_grid(ctx, &kernels::RASTER_COMPOSITE_VARIANTS)?,
+            composite_nonormal: kernels::RASTER_COMPOSITE_NONORMAL_VARIANTS
+                .map(|row| row.map(LazyKernel::new)),
             finalize: Kernel::new(ctx, &kernels::RASTER_FINALIZE)?,
             downsample: Kernel::new(ctx, &kernels::RASTER_DOWNSAMPLE)?,
             host_output: Kernel::new(ctx, &kernels::RASTER_HOST_OUTPUT)?,

@@ -130,21 +130,8 @@ pub(super) struct ChunkPush {
     /// `SEG_OFF`, `SEG_TRANSMIT` or `SEG_EXACT` (raster_params.glsl).
     pub(super) mode: u32,
 }
-push_constants!(RASTER_COMPOSITE_K1, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K2, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K3, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K1_MAXW, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K2_MAXW, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K3_MAXW, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K1_COUNTERS, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K2_COUNTERS, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K3_COUNTERS, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K1_NONORMAL, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K2_NONORMAL, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K3_NONORMAL, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K1_MAXW_NONORMAL, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K2_MAXW_NONORMAL, ChunkPush);
-push_constants!(RASTER_COMPOSITE_K3_MAXW_NONORMAL, ChunkPush);
+push_constants!(RASTER_COMPOSITE_VARIANTS, ChunkPush);
+push_constants!(RASTER_COMPOSITE_NONORMAL_VARIANTS, ChunkPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]

@@ -1,7 +1,7 @@
 //! Onesweep radix sort of u64 keys (or u32 keys, [`KeyWidth::U32`], for bit ranges below
 //! 32: 8 instead of 12 bytes moved per pair and pass) with u32 values (stable, any bit
 //! range), recorded into any command buffer with no host read-back; the element count
-//! can come from a GPU buffer (indirect dispatch). See `glsl/lib/onesweep.glsl` for the
+//! can come from a GPU buffer (indirect dispatch). See `glsl/sort/onesweep.glsl` for the
 //! algorithm.
 //!
 //! Per sort: `setup` (count, dispatch arguments, epoch) → `histogram` (all digits at
@@ -10,9 +10,9 @@
 //! caller's primary and alternate buffers → a copy when an odd number of passes was
 //! skipped, so the result is where the recorded passes say.
 //!
-//! Two pass kernels ([`SortPass`]): `glsl/lib/onesweep.glsl` scatters each key straight
+//! Two pass kernels ([`SortPass`]): `glsl/sort/onesweep.glsl` scatters each key straight
 //! to its destination (the fastest on lavapipe, where a write is a CPU store), and
-//! `glsl/lib/onesweep_coalesced.glsl` stages the tile in shared memory in sorted order
+//! `glsl/sort/onesweep_coalesced.glsl` stages the tile in shared memory in sorted order
 //! and writes runs (what a GPU's memory system needs). [`SortPass::for_device`] picks
 //! from the device's type, subgroup size and shared memory.
 
@@ -31,7 +31,7 @@ use pass::MIN_TILE;
 
 /// Elements per tile of the direct pass (WG × KPT in onesweep.glsl).
 pub const SORT_TILE: u32 = glsl::WG * glsl::KPT;
-/// Keys per histogram workgroup (HIST_WG × HIST_KPT in sort_histogram.glsl).
+/// Keys per histogram workgroup (HIST_WG × HIST_KPT in glsl/sort/histogram.glsl).
 const HIST_CHUNK: u32 = glsl::HIST_WG * glsl::HIST_KPT;
 // Words of the state buffer (ST_* in pass_state.glsl).
 /// Words of the state buffer (ST_WORDS in pass_state.glsl).
@@ -73,8 +73,7 @@ struct HistPush {
     passes: u32,
     aggregate: u32,
 }
-push_constants!(SORT_HISTOGRAM, HistPush);
-push_constants!(SORT_HISTOGRAM_K32, HistPush);
+push_constants!(SORT_HISTOGRAM_VARIANTS, HistPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -114,12 +113,9 @@ struct PassPush {
     generic_rank: u32,
     pad: u32,
 }
-push_constants!(SORT_ONESWEEP, PassPush);
-push_constants!(SORT_ONESWEEP_K32, PassPush);
-push_constants!(SORT_ONESWEEP_C128, PassPush);
-push_constants!(SORT_ONESWEEP_C128_K32, PassPush);
-push_constants!(SORT_ONESWEEP_C256, PassPush);
-push_constants!(SORT_ONESWEEP_C256_K32, PassPush);
+push_constants!(SORT_ONESWEEP_VARIANTS, PassPush);
+push_constants!(SORT_ONESWEEP_C128_VARIANTS, PassPush);
+push_constants!(SORT_ONESWEEP_C256_VARIANTS, PassPush);
 
 /// Where the element count of a run comes from.
 #[derive(Clone, Copy)]
@@ -298,8 +294,8 @@ impl RadixSort {
         Ok(RadixSort {
             ctx: ctx.clone(),
             run: RunState::new(ctx, "radix-sort", capacity, tiles * 256)?,
-            hist: Kernel::new(ctx, &kernels::SORT_HISTOGRAM)?,
-            hist32: Kernel::new(ctx, &kernels::SORT_HISTOGRAM_K32)?,
+            hist: Kernel::new(ctx, kernels::SORT_HISTOGRAM_VARIANTS[0])?,
+            hist32: Kernel::new(ctx, kernels::SORT_HISTOGRAM_VARIANTS[1])?,
             hist_scan: Kernel::new(ctx, &kernels::SORT_HIST_SCAN)?,
             copy: Kernel::new(ctx, &kernels::SORT_COPY)?,
             kind,
@@ -332,7 +328,7 @@ impl RadixSort {
     }
 
     /// With `on`, the passes rank keys with one ballot per digit bit on every subgroup
-    /// size instead of the 8-lane shuffle comparison (`glsl/lib/onesweep.glsl`), and the
+    /// size instead of the 8-lane shuffle comparison (`glsl/sort/onesweep.glsl`), and the
     /// histogram adds a digit a whole subgroup shares once, so the paths that real GPUs
     /// (32 or 64 lanes) take are exercised on lavapipe. The result is the same; for
     /// tests.

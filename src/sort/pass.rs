@@ -98,15 +98,9 @@ impl SortPass {
 
     pub(super) fn kernels(self) -> [&'static KernelSource; 2] {
         match self {
-            SortPass::Direct => [&kernels::SORT_ONESWEEP, &kernels::SORT_ONESWEEP_K32],
-            SortPass::Coalesced128 => [
-                &kernels::SORT_ONESWEEP_C128,
-                &kernels::SORT_ONESWEEP_C128_K32,
-            ],
-            SortPass::Coalesced256 => [
-                &kernels::SORT_ONESWEEP_C256,
-                &kernels::SORT_ONESWEEP_C256_K32,
-            ],
+            SortPass::Direct => kernels::SORT_ONESWEEP_VARIANTS,
+            SortPass::Coalesced128 => kernels::SORT_ONESWEEP_C128_VARIANTS,
+            SortPass::Coalesced256 => kernels::SORT_ONESWEEP_C256_VARIANTS,
         }
     }
 }

@@ -65,6 +65,16 @@ pub enum Reduction {
 }
 
 impl Reduction {
+    /// Index of the reduction in the variant families (`glsl/variants.rs`: native
+    /// atomics, compare-and-swap, ordered).
+    pub(crate) fn index(self) -> usize {
+        match self {
+            Reduction::Atomic => 0,
+            Reduction::CompareSwap => 1,
+            Reduction::Ordered => 2,
+        }
+    }
+
     /// Ordered when `deterministic`, else native float atomics where the device has
     /// them and `float_atomics` allows it, else compare-and-swap.
     pub fn choose(ctx: &Context, float_atomics: bool, deterministic: bool) -> Reduction {
@@ -284,8 +294,7 @@ struct Push2 {
 }
 push_constants!(TRAIN_GRAD_PREPARE, Push2);
 push_constants!(TRAIN_SEG_BMERGE, Push2);
-push_constants!(TRAIN_VOXEL_BACKWARD, Push2);
-push_constants!(TRAIN_VOXEL_BACKWARD_CAS, Push2);
+push_constants!(TRAIN_VOXEL_BACKWARD_VARIANTS, Push2);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -297,35 +306,10 @@ struct ChunkPush {
     /// for the other kernels.
     mode: u32,
 }
-push_constants!(TRAIN_BACKWARD_K1, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K2, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K3, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K1_CAS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K2_CAS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K3_CAS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K1_COUNTERS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K2_COUNTERS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K3_COUNTERS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K1_CAS_COUNTERS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K2_CAS_COUNTERS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K3_CAS_COUNTERS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K1_DET, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K2_DET, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K3_DET, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K1_DET_COUNTERS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K2_DET_COUNTERS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K3_DET_COUNTERS, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K1_NONORMAL, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K2_NONORMAL, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K3_NONORMAL, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K1_CAS_NONORMAL, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K2_CAS_NONORMAL, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K3_CAS_NONORMAL, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K1_DET_NONORMAL, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K2_DET_NONORMAL, ChunkPush);
-push_constants!(TRAIN_BACKWARD_K3_DET_NONORMAL, ChunkPush);
+push_constants!(TRAIN_BACKWARD_VARIANTS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_COUNTERS_VARIANTS, ChunkPush);
+push_constants!(TRAIN_BACKWARD_NONORMAL_VARIANTS, ChunkPush);
 push_constants!(TRAIN_RECORDS_GATHER, ChunkPush);
-push_constants!(TRAIN_VOXEL_BACKWARD_DET, Push2);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -381,62 +365,13 @@ impl Backward {
                 "this device has no float atomic adds; use Reduction::choose".into(),
             ));
         }
-        let (k, kc, kl, v) = match reduction {
-            Reduction::Atomic => (
-                [
-                    &kernels::TRAIN_BACKWARD_K1,
-                    &kernels::TRAIN_BACKWARD_K2,
-                    &kernels::TRAIN_BACKWARD_K3,
-                ],
-                [
-                    &kernels::TRAIN_BACKWARD_K1_COUNTERS,
-                    &kernels::TRAIN_BACKWARD_K2_COUNTERS,
-                    &kernels::TRAIN_BACKWARD_K3_COUNTERS,
-                ],
-                [
-                    &kernels::TRAIN_BACKWARD_K1_NONORMAL,
-                    &kernels::TRAIN_BACKWARD_K2_NONORMAL,
-                    &kernels::TRAIN_BACKWARD_K3_NONORMAL,
-                ],
-                &kernels::TRAIN_VOXEL_BACKWARD,
-            ),
-            Reduction::CompareSwap => (
-                [
-                    &kernels::TRAIN_BACKWARD_K1_CAS,
-                    &kernels::TRAIN_BACKWARD_K2_CAS,
-                    &kernels::TRAIN_BACKWARD_K3_CAS,
-                ],
-                [
-                    &kernels::TRAIN_BACKWARD_K1_CAS_COUNTERS,
-                    &kernels::TRAIN_BACKWARD_K2_CAS_COUNTERS,
-                    &kernels::TRAIN_BACKWARD_K3_CAS_COUNTERS,
-                ],
-                [
-                    &kernels::TRAIN_BACKWARD_K1_CAS_NONORMAL,
-                    &kernels::TRAIN_BACKWARD_K2_CAS_NONORMAL,
-                    &kernels::TRAIN_BACKWARD_K3_CAS_NONORMAL,
-                ],
-                &kernels::TRAIN_VOXEL_BACKWARD_CAS,
-            ),
-            Reduction::Ordered => (
-                [
-                    &kernels::TRAIN_BACKWARD_K1_DET,
-                    &kernels::TRAIN_BACKWARD_K2_DET,
-                    &kernels::TRAIN_BACKWARD_K3_DET,
-                ],
-                [
-                    &kernels::TRAIN_BACKWARD_K1_DET_COUNTERS,
-                    &kernels::TRAIN_BACKWARD_K2_DET_COUNTERS,
-                    &kernels::TRAIN_BACKWARD_K3_DET_COUNTERS,
-                ],
-                [
-                    &kernels::TRAIN_BACKWARD_K1_DET_NONORMAL,
-                    &kernels::TRAIN_BACKWARD_K2_DET_NONORMAL,
-                    &kernels::TRAIN_BACKWARD_K3_DET_NONORMAL,
-                ],
-                &kernels::TRAIN_VOXEL_BACKWARD_DET,
-            ),
-        };
+        let r = reduction.index();
+        let (k, kc, kl, v) = (
+            kernels::TRAIN_BACKWARD_VARIANTS[r],
+            kernels::TRAIN_BACKWARD_COUNTERS_VARIANTS[r],
+            kernels::TRAIN_BACKWARD_NONORMAL_VARIANTS[r],
+            kernels::TRAIN_VOXEL_BACKWARD_VARIANTS[r],
+        );
         let ordered = match reduction {
             Reduction::Ordered => Some(OrderedKernels {
                 records: Kernel::new(ctx, &kernels::TRAIN_RECORDS_GATHER)?,

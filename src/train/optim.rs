@@ -197,9 +197,7 @@ struct TvPush {
     voxels: u32,
     weight: f32,
 }
-push_constants!(TRAIN_TV, TvPush);
-push_constants!(TRAIN_TV_CAS, TvPush);
-push_constants!(TRAIN_TV_DET, TvPush);
+push_constants!(TRAIN_TV_VARIANTS, TvPush);
 
 /// The TV regulariser on the grid-point densities.
 pub struct Tv {
@@ -227,14 +225,12 @@ impl Tv {
     /// grid-point gradients (see [`super::backward::Backward::record_timed`]).
     pub fn with_reduction(ctx: &Context, reduction: Reduction) -> Result<Tv> {
         let src = match reduction {
-            Reduction::Atomic if ctx.info().float_atomic_add => &kernels::TRAIN_TV,
-            Reduction::Atomic => {
+            Reduction::Atomic if !ctx.info().float_atomic_add => {
                 return Err(Error::Invalid(
                     "this device has no float atomic adds; use Reduction::choose".into(),
                 ))
             }
-            Reduction::CompareSwap => &kernels::TRAIN_TV_CAS,
-            Reduction::Ordered => &kernels::TRAIN_TV_DET,
+            r => kernels::TRAIN_TV_VARIANTS[r.index()],
         };
         Ok(Tv {
             ctx: ctx.clone(),

@@ -1,5 +1,5 @@
 // Forward compositing of one 16x16 tile per workgroup (paper Eq. 1, supp. A.2-A.4).
-// Variants (build.rs permutation table): N_SAMP samples per voxel segment; TRACK_MAXW
+// Variants (glsl/variants.rs): N_SAMP samples per voxel segment; TRACK_MAXW
 // folds per-voxel max blend weights (the adaptive statistics pass only); COUNTERS counts
 // the walk's work into P.counters (bench only).
 //

@@ -1,5 +1,5 @@
-// Backward of the compositing (paper §3.2; docs/ARCHITECTURE.md §4). Variants (build.rs permutation
-// table): N_SAMP samples per voxel segment; FLOAT_ATOMICS (else CAS float adds);
+// Backward of the compositing (paper §3.2; docs/ARCHITECTURE.md §4). Variants
+// (glsl/variants.rs): N_SAMP samples per voxel segment; FLOAT_ATOMICS (else CAS float adds);
 // COUNTERS counts the walk's work into P.counters (bench only).
 //
 // One workgroup per 16x16 tile walks the tile's sorted list BACK TO FRONT, starting at
