@@ -2,7 +2,7 @@
 //! without unseen voxels, pruning and subdivision on the demo scene, the voxel budget and
 //! the uniform baseline.
 
-mod common;
+use crate::common;
 
 use common::{context, finish, mean_psnr, Rng};
 use svraster::adapt::topology::Topology;

@@ -20,7 +20,7 @@
 //!   INTERVAL_TOL relative to `max(|centre − origin|, near) / fx` (f32 rounding of the
 //!   camera-relative centre scales with its distance, not with its depth z).
 
-mod common;
+use crate::common;
 
 use common::reference::{self, alpha_of, pixel_ray, EARLY_STOP_T, MIN_ALPHA};
 use common::{camera_inside, camera_outside, context, finish, random_scene, Rng};

@@ -2,7 +2,7 @@
 //! own debug messenger, tests/common/host.rs), lends them to the engine, and records the
 //! sort into a command buffer it owns and submits itself.
 
-mod common;
+use crate::common;
 
 use common::host::{assert_host_clean, Host};
 use svraster::sort::{Count, RadixSort, SortScratch};

@@ -1,7 +1,7 @@
 //! Real-capture input: COLMAP models (binary and text), COLMAP's camera models, lens
 //! removal at load, splits, and the real captures in ../shared/data when present.
 
-mod common;
+use crate::common;
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};

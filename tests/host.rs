@@ -13,7 +13,7 @@
 //! (plus 1e-4) of the float target's value encoded the same way; 16F within 1e-3
 //! relative.
 
-mod common;
+use crate::common;
 
 use ash::vk;
 use common::host::{assert_host_clean, Host, HostBuffer};

@@ -3,7 +3,7 @@
 //! gradient is checked by central differences; and the distortion sum against the
 //! f64 reference forward.
 
-mod common;
+use crate::common;
 
 use common::reference_grad::{evaluate, pixel_rays, LossSpec, Params, PixelWeights, TERM_DIST};
 use common::{camera_outside, context, finish, random_scene, Rng};

@@ -1,7 +1,7 @@
 //! Meshes: marching cubes over sparse voxels (closed, oriented, deduplicated; area and
 //! volume of analytic level sets).
 
-mod common;
+use crate::common;
 
 use svraster::mesh::mc::CENTRE;
 use svraster::mesh::{marching_cubes, TriMesh};

@@ -11,7 +11,7 @@
 //!   atomic adds in any order); the reference gradient matches central differences
 //!   within 1e-9·max(|grad|, 1) + 16·ε₆₄·L/h.
 
-mod common;
+use crate::common;
 
 use common::{context, finish, Rng};
 use svraster::gpu::{recorder, Buffer, Context, Memory};

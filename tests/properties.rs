@@ -8,7 +8,7 @@
 //! generator seed), so CI draws the same cases every time; a failure prints the case,
 //! shrunk towards the simplest one that still fails.
 
-mod common;
+use crate::common;
 
 use common::backward::{
     compare_within, forward_eval, gpu_grads, random_weights, reductions, BOUND,

@@ -4,7 +4,7 @@
 //! ≤ RGB_TOL, depth ≤ DEPTH_TOL·(1 + depth), normal ≤ NORMAL_TOL, median depth ≤
 //! DEPTH_TOL·(1 + depth) except where the reference decides it within 1e-3 of T = 0.5.
 
-mod common;
+use crate::common;
 
 use common::forward::{
     assert_within, compare, pixel, render, Errors, DEPTH_TOL, NORMAL_TOL, RGB_TOL,

@@ -21,9 +21,7 @@
 //! ([`AlphaNudge`]; L_p is quadratic in one alpha, so the difference is exact up to
 //! rounding), |prio − fd| ≤ 1e-8·(fd + 1e-3·max fd); measured 4.7e-11.
 
-#![allow(clippy::needless_range_loop)]
-
-mod common;
+use crate::common;
 
 use common::reference::{self, render_pixel, voxel_rgb};
 use common::reference_grad::{

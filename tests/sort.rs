@@ -1,7 +1,7 @@
 //! Radix sort and prefix scan against Rust's stable sort / a plain scan, on every size
 //! class and key distribution the issue lists, with stability checked through values.
 
-mod common;
+use crate::common;
 
 use common::Rng;
 use svraster::gpu::{recorder, Context, Memory};

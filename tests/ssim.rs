@@ -1,7 +1,7 @@
 //! SSIM: the f64 CPU reference against finite differences, closed forms and an
 //! independent (numpy/scipy) value; the GPU value and gradient against the reference.
 
-mod common;
+use crate::common;
 
 use common::Rng;
 use svraster::eval::ssim::{gaussian_window, ssim as ssim_cpu, ssim_grad as ssim_grad_cpu, C1, C2};

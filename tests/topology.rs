@@ -12,7 +12,7 @@
 //! - ~350 k voxels / 2.76 M candidates: invariants and host comparison hold (≤ 9.1e-8),
 //!   with 24 and with 51 sort key bits.
 
-mod common;
+use crate::common;
 
 use common::forward::render;
 

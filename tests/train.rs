@@ -1,7 +1,7 @@
 //! The trainer end to end on the procedural demo scene (the CI training smoke test),
 //! its schedule, reproducibility and failure handling.
 
-mod common;
+use crate::common;
 
 use common::{context, finish, mean_psnr};
 use svraster::data::{self, demo};

@@ -3,7 +3,7 @@
 //! (deterministic) reduction, chunked and not,
 //! K = 1..3; gradients stay finite at the numerical extremes.
 
-mod common;
+use crate::common;
 
 use common::backward::{
     ambiguous, compare, compare_within, default_reduction, gpu_grads, gpu_grads_segmented,

@@ -1,6 +1,5 @@
 //! Shared test helpers: a validated context, deterministic random data, and the f64/
 //! plain-Rust references the GPU results are checked against.
-#![allow(dead_code)]
 
 use svraster::gpu::{Context, ContextOptions};
 

@@ -1,7 +1,7 @@
 //! The f64 CPU reference renderer, written for clarity: per pixel, collect every voxel
 //! the ray hits, order the hits by entry distance, composite. No sorting keys, tiles,
 //! Morton orders or screen rectangles are involved, so it checks all of those.
-#![allow(dead_code, clippy::needless_range_loop, clippy::too_many_arguments)]
+#![allow(clippy::needless_range_loop, clippy::too_many_arguments)]
 
 use svraster::data::Camera;
 use svraster::scene::Scene;

@@ -52,7 +52,7 @@
 //! derivative w.r.t. that entry's (clamped) alpha value taken as a variable (everything
 //! downstream of α: w_k, T_{j>k}, T_final, and for K = 1 the entry's depth), before the
 //! clamp's own derivative.
-#![allow(dead_code, clippy::needless_range_loop, clippy::too_many_arguments)]
+#![allow(clippy::needless_range_loop, clippy::too_many_arguments)]
 
 use super::reference::{
     dot, explin, normalize, pixel_ray, ray_hits, sh_basis, sub, trilinear, EARLY_STOP_T, MAX_ALPHA,
@@ -331,8 +331,7 @@ struct Contrib {
     /// 0.5 + SH per channel, and the clamped colour.
     pre: [f64; 3],
     rgb: [f64; 3],
-    /// Unnormalised normal, its squared length, and the normal.
-    nraw: [f64; 3],
+    /// The unnormalised normal's squared length, and the normal.
     nn: f64,
     n: [f64; 3],
     /// Un-transmitted depth contribution (ray-distance units).
@@ -341,7 +340,6 @@ struct Contrib {
 
 struct PixelForward {
     contribs: Vec<Contrib>,
-    t_final: f64,
     terms: [f64; NUM_TERMS],
 }
 
@@ -462,7 +460,6 @@ fn forward_pixel(
             basis,
             pre,
             rgb,
-            nraw,
             nn,
             n,
             dval,
@@ -508,11 +505,7 @@ fn forward_pixel(
     terms[TERM_NORMAL] = dot(pw.normal, out_normal);
     terms[TERM_DIST] = spec.lambda_dist * dist;
     terms[TERM_POINT_RGB] = spec.lambda_r * point_rgb;
-    PixelForward {
-        contribs,
-        t_final: t,
-        terms,
-    }
+    PixelForward { contribs, terms }
 }
 
 /// Reverse mode for one pixel; accumulates into `out`.
