@@ -4,7 +4,7 @@
 //! empty, that clamp every alpha at its maximum, or a mix of both with moderate ones;
 //! image sizes from 1×1; SH degrees 0–3 and 1–3 samples per segment — and the forward
 //! frame and the training gradients checked against the f64 references within the bounds
-//! tests/raster.rs and tests/train_grad.rs state. The runs are deterministic (a fixed
+//! tests/raster/ and tests/train_grad/ state. The runs are deterministic (a fixed
 //! generator seed), so CI draws the same cases every time; a failure prints the case,
 //! shrunk towards the simplest one that still fails.
 

@@ -12,7 +12,7 @@
 #  - python3-numpy: tools/ply_read.py, the independent PLY reader the mesh tests check
 #    our PLY output with
 #  - xvfb xauth and the X11 client libraries winit opens at run time (libx11-6 libx11-xcb1
-#    libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0): examples/viewer.rs runs under a
+#    libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0): examples/viewer/ runs under a
 #    virtual X server in tests/viewer.rs
 set -euo pipefail
 MESA=${MESA:-backports}

@@ -12,7 +12,7 @@
 // with W = Σw = T_s − T_end, M = Σw·m = M_end − M_s, L the segment's distortion sum,
 // (T_s, M_s) the state in front of it and (WA, MA) the Σ w, Σ w·m behind it (checked
 // against the sequential recursion in f64 and through the f64 reference gradients:
-// tests/train_grad.rs segmented_*).
+// tests/train_grad/ segmented_*).
 #include "raster_params.glsl"
 #include "explin.glsl"
 #include "backward_params.glsl"

@@ -11,7 +11,7 @@
 //!   photo ([`pinhole_crop`]); no pixel is invented, so no mask is needed. Pinhole
 //!   cameras are not resampled. The renderer and the f64 references therefore stay
 //!   pinhole; the lens models themselves are in [`super::lens`] and checked against
-//!   COLMAP's formulas in tests/capture.rs.
+//!   COLMAP's formulas in tests/capture/.
 //! - **Downscaling** (`downscale` > 1) is the exact area average of [`area_resample`],
 //!   applied after undistortion.
 //! - **Splits**: frames sorted by image name; every `holdout`-th (0, 8, 16, …) is `test`,

@@ -8,7 +8,7 @@
 //! values (the reference's start, which it refines by moving single values between
 //! neighbours) and 256 uniform levels over the range — keeping the one with the lower
 //! squared error: on a compact distribution the equal-count start converges to a worse
-//! local optimum than uniform levels (measured in `tests/checkpoint.rs`). On sorted
+//! local optimum than uniform levels (measured in `tests/checkpoint/`). On sorted
 //! values Lloyd's steps are exact and cheap: the cells are the intervals between the
 //! midpoints of adjacent centroids, found by binary search, and their means come from
 //! prefix sums.

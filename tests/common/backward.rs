@@ -1,5 +1,5 @@
 //! The training backward run on the GPU and compared with the f64 reference gradients
-//! (tests/common/reference_grad.rs), shared by tests/train_grad.rs and
+//! (tests/common/reference_grad.rs), shared by tests/train_grad/ and
 //! tests/properties.rs.
 
 use super::reference_grad::{evaluate, pixel_rays, Eval, LossSpec, Params, PixelWeights, RefGrads};

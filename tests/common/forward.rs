@@ -1,5 +1,5 @@
 //! The forward rasterizer's comparison with the f64 reference (tests/common/reference.rs),
-//! shared by tests/raster.rs and tests/properties.rs.
+//! shared by tests/raster/ and tests/properties.rs.
 //!
 //! Stated bounds (max abs error per pixel, f32 GPU vs f64 reference): rgb and alpha
 //! ≤ RGB_TOL, depth ≤ DEPTH_TOL·(1 + depth), normal ≤ NORMAL_TOL, median depth ≤

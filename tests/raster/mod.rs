@@ -1,0 +1,170 @@
+//! The forward rasterizer against the f64 reference (tests/common/reference.rs).
+//!
+//! Stated bounds (max abs error per pixel, f32 GPU vs f64 reference): rgb and alpha
+//! ≤ RGB_TOL, depth ≤ DEPTH_TOL·(1 + depth), normal ≤ NORMAL_TOL, median depth ≤
+//! DEPTH_TOL·(1 + depth) except where the reference decides it within 1e-3 of T = 0.5.
+
+use crate::common;
+
+use common::forward::{
+    assert_within, compare, pixel, render, Errors, DEPTH_TOL, NORMAL_TOL, RGB_TOL,
+};
+use common::reference::{self, RefPixel};
+use common::{camera_inside, camera_outside, context, finish, random_scene, scattered_scene, Rng};
+use svraster::data::Camera;
+use svraster::raster::{FrameOutputs, Image, RenderOptions, Renderer};
+use svraster::scene::SceneGpu;
+use svraster::scene::{octpath_from_ijk, Scene};
+
+/// A dense scene of a few levels with solid densities, for the extreme-camera tests.
+fn block_scene(center: [f32; 3], extent: f32, level: u32, geo: f32) -> Scene {
+    let n = 1u32 << level;
+    let mut paths = Vec::new();
+    for i in 0..n {
+        for j in 0..n {
+            for k in 0..n {
+                if (i + j + k) % 3 != 0 {
+                    paths.push(octpath_from_ijk([i, j, k], level));
+                }
+            }
+        }
+    }
+    let levels = vec![level as u8; paths.len()];
+    let mut s = Scene::from_voxels(center, extent, 1, paths, levels, geo).unwrap();
+    let mut rng = Rng(5);
+    for (gi, g) in s.geo.iter_mut().enumerate() {
+        *g = geo + (gi % 7) as f32 * 0.3 - 1.0 + rng.range(-0.1, 0.1) as f32;
+    }
+    for c in s.sh0.iter_mut() {
+        *c = [
+            rng.unit() as f32,
+            rng.unit() as f32 - 0.5,
+            -(rng.unit() as f32),
+        ];
+    }
+    for v in s.shs.iter_mut() {
+        *v = rng.range(-0.3, 0.3) as f32;
+    }
+    s.background = [0.2, 0.4, 0.9];
+    s
+}
+
+/// The reference's anti-aliasing downsample (tent filter of radius = scale).
+fn reference_downsample(src: &[RefPixel], sw: u32, sh: u32, w: u32, h: u32) -> Vec<RefPixel> {
+    let (sx, sy) = (sw as f64 / w as f64, sh as f64 / h as f64);
+    let (rx, ry) = (sx.max(1.0), sy.max(1.0));
+    let mut out = Vec::new();
+    for oy in 0..h {
+        for ox in 0..w {
+            let (cx, cy) = ((ox as f64 + 0.5) * sx, (oy as f64 + 0.5) * sy);
+            let mut acc = RefPixel::default();
+            let mut wsum = 0.0;
+            for y in 0..sh {
+                let wy = (1.0 - (y as f64 + 0.5 - cy).abs() / ry).max(0.0);
+                for x in 0..sw {
+                    let wx = (1.0 - (x as f64 + 0.5 - cx).abs() / rx).max(0.0);
+                    let wgt = wx * wy;
+                    if wgt == 0.0 {
+                        continue;
+                    }
+                    let p = &src[(y * sw + x) as usize];
+                    for c in 0..3 {
+                        acc.rgb[c] += wgt * p.rgb[c];
+                        acc.normal[c] += wgt * p.normal[c];
+                    }
+                    acc.alpha += wgt * p.alpha;
+                    acc.depth += wgt * p.depth;
+                    acc.depth_median += wgt * p.depth_median;
+                    acc.median_ambiguous |= p.median_ambiguous;
+                    wsum += wgt;
+                }
+            }
+            for c in 0..3 {
+                acc.rgb[c] /= wsum;
+                acc.normal[c] /= wsum;
+            }
+            acc.alpha /= wsum;
+            acc.depth /= wsum;
+            acc.depth_median /= wsum;
+            out.push(acc);
+        }
+    }
+    out
+}
+
+/// The two hard limits of the entry encoding are refused up front with one clear error
+/// (README: Numerical limits): pixel rectangles pack each coordinate in 16 bits (at most
+/// 65 535 pixels per render edge) and entry values keep the voxel id in 29 bits.
+/// Frames queued behind each other (`render_each`, what `render` and `eval` use) give
+/// exactly the frames rendered one by one, including frames that come out incomplete
+/// (small chunks, small entry capacity) while the next one is queued; a warm pass is
+/// one submission per frame and one drain in all.
+#[test]
+fn queued_frames_match_frames_rendered_one_by_one() {
+    let ctx = context();
+    let scene = block_scene([0.1, -0.2, 0.3], 2.5, 5, -1.5);
+    // Far and near views in turn: tile lists grow and shrink from frame to frame.
+    let cams: Vec<Camera> = [3.2, 1.5, 4.5, 1.2, 2.0, 5.5, 1.8, 2.6]
+        .iter()
+        .enumerate()
+        .map(|(i, &d)| {
+            let a = i as f64 * 0.7;
+            Camera::look_at(
+                [0.1 + d * a.cos(), -0.2 + d * a.sin(), 0.3 + 0.4 * d],
+                [0.1, -0.2, 0.3],
+                [0.0, 0.0, 1.0],
+                1.1,
+                96 + 8 * i as u32,
+                72,
+            )
+        })
+        .collect();
+    let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+    let opts = RenderOptions {
+        samples: 1,
+        supersample: 1.5,
+    };
+    let mut one = Renderer::new(&ctx).unwrap();
+    let want: Vec<Image> = cams
+        .iter()
+        .map(|c| one.render(&gpu, c, &opts).unwrap().0)
+        .collect();
+    let mut r = Renderer::new(&ctx).unwrap();
+    r.set_chunk_size(40);
+    for pass in 0..2 {
+        let c0 = ctx.queue_counters();
+        let grown0 = r.frames_grown();
+        let mut order = Vec::new();
+        r.render_each(&gpu, &cams, &opts, |i, img, st| -> svraster::Result<()> {
+            assert!(st.complete(), "frame {i}: {st:?}");
+            let w = &want[i];
+            assert_eq!((img.width, img.height), (w.width, w.height), "frame {i}");
+            assert!(img.rgb == w.rgb, "frame {i}: colours differ (pass {pass})");
+            assert!(img.alpha == w.alpha, "frame {i}: alpha differs");
+            assert!(img.depth == w.depth, "frame {i}: depth differs");
+            assert!(
+                img.depth_median == w.depth_median,
+                "frame {i}: median differs"
+            );
+            order.push(i);
+            Ok(())
+        })
+        .unwrap();
+        let c = ctx.queue_counters() - c0;
+        let grown = r.frames_grown() - grown0;
+        println!("pass {pass}: {c:?}, {grown} frames rendered again");
+        assert_eq!(order, (0..cams.len()).collect::<Vec<_>>());
+        if pass == 0 {
+            assert!(grown >= 2, "the small chunks must make frames incomplete");
+        } else {
+            assert_eq!(grown, 0);
+            assert_eq!(c.submits, cams.len() as u64);
+            assert_eq!(c.fence_waits, 1, "only the last frame drains the queue");
+            assert_eq!(c.throttle_waits, cams.len() as u64 - 1);
+        }
+    }
+    finish(&ctx);
+}
+
+mod against_reference;
+mod image_edges;
