@@ -16,6 +16,7 @@ pub enum ExportFormat {
 }
 
 pub fn run(model: &Path, format: ExportFormat, out: &Path) -> anyhow::Result<()> {
+    refuse_output_over_model(model, out)?;
     let scene = super::render::load_model(model)?;
     match format {
         ExportFormat::Ply => {
@@ -46,6 +47,30 @@ pub fn run(model: &Path, format: ExportFormat, out: &Path) -> anyhow::Result<()>
 
 /// The binary little-endian PLY of the voxels: `float x y z` (centre, world), `float
 /// size` (edge, world), `uchar level`, `float density` (the activated density at the
+/// The export must not replace the model it reads, nor the checkpoint pair of its run
+/// (`export RUN --out RUN/model.safetensors` replaced the trained model).
+fn refuse_output_over_model(model: &Path, out: &Path) -> anyhow::Result<()> {
+    use super::render::resolved;
+    let model_file = resolved(&super::render::model_path(model)?);
+    let o = resolved(out);
+    let run_dir = model_file
+        .parent()
+        .map(Path::to_path_buf)
+        .unwrap_or_default();
+    let checkpoint = ["model.safetensors", "optimizer.safetensors"]
+        .iter()
+        .any(|n| o == run_dir.join(n));
+    if o == model_file || checkpoint {
+        anyhow::bail!(
+            "--out {} would replace the model being exported ({}) or its run's checkpoint; \
+             choose another file",
+            out.display(),
+            model_file.display()
+        );
+    }
+    Ok(())
+}
+
 /// centre, `explin` of the mean corner value, per model unit length), `uchar red green
 /// blue` (the degree-0 colour 0.5 + C0·sh0, clamped).
 pub fn voxel_ply(scene: &Scene) -> Vec<u8> {

@@ -195,6 +195,7 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
     if ds.frames.is_empty() {
         bail!("split `{}` of {} has no frames", a.split, a.data.display());
     }
+    refuse_output_in_dataset(&a.out, &a.data)?;
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create output directory {}", a.out.display()))?;
     let opts = RenderOptions {
@@ -243,6 +244,45 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
     progress.finish();
     let n = ds.frames.len() as f64;
     Ok((total_psnr / n, ms / n))
+}
+
+/// `path` made absolute through its longest existing ancestor (symlinks resolved), so
+/// that an output that does not exist yet can be compared with an input.
+pub fn resolved(path: &Path) -> PathBuf {
+    let mut tail = Vec::new();
+    let mut p = path.to_path_buf();
+    loop {
+        if let Ok(c) = p.canonicalize() {
+            return tail.iter().rev().fold(c, |acc: PathBuf, t| acc.join(t));
+        }
+        match (p.file_name().map(|f| f.to_os_string()), p.parent()) {
+            (Some(f), Some(parent)) => {
+                tail.push(f);
+                p = if parent.as_os_str().is_empty() {
+                    PathBuf::from(".")
+                } else {
+                    parent.to_path_buf()
+                };
+            }
+            _ => return path.to_path_buf(),
+        }
+    }
+}
+
+/// Renders are written as STEM.png per frame: inside the dataset they can replace its
+/// photos (`--out DATA/test` did), so the dataset's folder and everything in it are
+/// refused as the output.
+fn refuse_output_in_dataset(out: &Path, data: &Path) -> anyhow::Result<()> {
+    let (o, d) = (resolved(out), resolved(data));
+    if o.starts_with(&d) {
+        bail!(
+            "--out {} is inside the dataset {}: the renders (one STEM.png per frame) could \
+             replace its photos. Write them to a folder outside the dataset",
+            out.display(),
+            data.display()
+        );
+    }
+    Ok(())
 }
 
 pub fn run_render(ctx: &Context, a: RenderArgs) -> anyhow::Result<()> {

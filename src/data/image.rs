@@ -61,7 +61,15 @@ pub fn load_rgba(path: &Path) -> Result<(u32, u32, Vec<[f32; 4]>)> {
         .with_guessed_format()
         .map_err(|e| bad(e.to_string()))?;
     match reader.format() {
-        Some(ImageFormat::Png | ImageFormat::Jpeg) => {}
+        Some(ImageFormat::Png) => {}
+        // The JPEG decoder fills what a truncated file lacks with grey and succeeds.
+        Some(ImageFormat::Jpeg) => jpeg_complete(&bytes).map_err(|why| {
+            Error::Invalid(format!(
+                "{}: the JPEG {why}: the file is truncated or corrupt (an interrupted copy or \
+                 download?); copy or export it again",
+                path.display()
+            ))
+        })?,
         other => return Err(bad(format!("format {other:?} is not supported"))),
     }
     let mut decoder = reader.into_decoder().map_err(|e| bad(e.to_string()))?;
@@ -139,4 +147,62 @@ fn save_png(
         .write_image(bytes, width, height, color)
         .map_err(|e| Error::Invalid(format!("{}: cannot encode PNG: {e}", path.display())))?;
     write_atomic(path, &buf)
+}
+
+/// Whether a JPEG's main image is complete: its segments are walked from the
+/// start-of-image marker (lengths skipped, entropy-coded data scanned to the next marker)
+/// until the end-of-image marker. Data after it (a motion photo's video) is not read;
+/// an EXIF thumbnail's own markers lie inside its APP1 segment and are skipped with it.
+pub fn jpeg_complete(bytes: &[u8]) -> std::result::Result<(), String> {
+    let n = bytes.len();
+    let truncated = |at: usize| format!("ends at byte {at} before its end-of-image marker");
+    if n < 2 || bytes[0] != 0xFF || bytes[1] != 0xD8 {
+        return Err("has no start-of-image marker".into());
+    }
+    let mut i = 2;
+    loop {
+        // The next marker: 0xFF (fill bytes allowed), then its code.
+        while i < n && bytes[i] != 0xFF {
+            i += 1;
+        }
+        while i < n && bytes[i] == 0xFF {
+            i += 1;
+        }
+        if i >= n {
+            return Err(truncated(n));
+        }
+        let code = bytes[i];
+        i += 1;
+        match code {
+            0xD9 => return Ok(()),
+            0x01 | 0xD0..=0xD8 => continue, // markers without a segment
+            _ => {
+                if i + 2 > n {
+                    return Err(truncated(n));
+                }
+                let len = usize::from(bytes[i]) << 8 | usize::from(bytes[i + 1]);
+                if len < 2 {
+                    return Err(format!("has a segment of length {len} at byte {i}"));
+                }
+                i += len;
+                if i > n {
+                    return Err(truncated(n));
+                }
+                if code == 0xDA {
+                    // Entropy-coded data: 0xFF is followed by 0x00 (a stuffed byte) or a
+                    // restart marker; anything else starts the next marker.
+                    loop {
+                        if i + 1 >= n {
+                            return Err(truncated(n));
+                        }
+                        let next = bytes[i + 1];
+                        if bytes[i] == 0xFF && next != 0x00 && !(0xD0..=0xD7).contains(&next) {
+                            break;
+                        }
+                        i += 1;
+                    }
+                }
+            }
+        }
+    }
 }

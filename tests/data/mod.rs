@@ -172,3 +172,4 @@ impl<'a> Field<'a> {
 
 mod blender_loader;
 mod demo_scene;
+mod jpeg;

@@ -168,6 +168,7 @@ fn ply_info(path: &std::path::Path) -> (serde_json::Value, Vec<String>) {
     (v, props)
 }
 
+mod defects;
 mod demo_render_train;
 mod export_bench;
 mod resume_signals;

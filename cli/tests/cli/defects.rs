@@ -1,0 +1,129 @@
+//! Defects a new user hit (issue "What users of nerfstudio, Brush and SVRaster reach
+//! for"), each through the command line.
+
+use super::*;
+
+/// A training photo that is a truncated JPEG (an interrupted copy) stops `train` with an
+/// error naming the file, before anything is written; the decoder alone would train on
+/// its missing rows as flat grey.
+#[test]
+fn train_refuses_a_truncated_jpeg() {
+    let data = tmp("trunc-jpeg");
+    write_demo(data.path(), 24, [4, 1, 1], 3);
+    // Frame 0 of the train split as a JPEG, cut to 60 %.
+    let json_path = data.path().join("transforms_train.json");
+    let mut doc: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json_path).unwrap()).unwrap();
+    let rel = doc["frames"][0]["file_path"].as_str().unwrap().to_string();
+    let png = data.path().join(format!("{rel}.png"));
+    let img = image::open(&png).unwrap().to_rgb8();
+    let mut jpg = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpg, 90)
+        .encode(
+            img.as_raw(),
+            img.width(),
+            img.height(),
+            image::ExtendedColorType::Rgb8,
+        )
+        .unwrap();
+    let cut = data.path().join(format!("{rel}.jpg"));
+    std::fs::write(&cut, &jpg[..jpg.len() * 6 / 10]).unwrap();
+    doc["frames"][0]["file_path"] = serde_json::Value::String(format!("{rel}.jpg"));
+    std::fs::write(&json_path, serde_json::to_string(&doc).unwrap()).unwrap();
+
+    let run = tmp("trunc-jpeg-run");
+    let out = run.path().join("run");
+    let (ok, _, err) = svraster(&[
+        "train",
+        data.path().to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+        "--iters",
+        "5",
+    ]);
+    assert!(!ok, "train accepted a truncated JPEG");
+    let name = cut.file_name().unwrap().to_str().unwrap();
+    assert!(
+        err.contains(name) && err.contains("truncated"),
+        "the error does not name the truncated file: {err}"
+    );
+    assert!(!out.join("model.safetensors").exists());
+}
+
+/// No output may replace an input: `render --out DATA/test` wrote its PNGs over the
+/// dataset's photos (a later `eval` then scored 58.74 dB), and `export --out
+/// RUN/model.safetensors` replaced the trained model. Both are refused before anything
+/// is written; the photos and the model are byte for byte what they were.
+#[test]
+fn outputs_never_replace_inputs() {
+    let dir = tmp("out-over-in");
+    let d = dir.path().to_str().unwrap();
+    let (ok, _, err) = svraster(&["demo", "--out", d, "--size", "16", "--iters", "5"]);
+    assert!(ok, "demo failed: {err}");
+    let (data, run) = (dir.path().join("data"), dir.path().join("run"));
+    let model = run.join("model.safetensors");
+    let photos = data.join("test");
+    let snapshot = |p: &std::path::Path| -> Vec<(std::path::PathBuf, Vec<u8>)> {
+        let mut v: Vec<_> = std::fs::read_dir(p)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .map(|f| (f.clone(), std::fs::read(&f).unwrap()))
+            .collect();
+        v.sort();
+        v
+    };
+    let before_photos = snapshot(&photos);
+    let before_model = std::fs::read(&model).unwrap();
+
+    for out in [photos.clone(), data.clone(), data.join("renders")] {
+        let (ok, _, err) = svraster(&[
+            "render",
+            run.to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+            "--split",
+            "test",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(!ok, "render into {} was accepted", out.display());
+        assert!(err.contains("inside the dataset"), "{err}");
+    }
+    assert!(!data.join("renders").exists());
+    for out in [
+        model.clone(),
+        run.join("optimizer.safetensors"),
+        run.join("./model.safetensors"),
+    ] {
+        for format in ["ply", "quantized"] {
+            let (ok, _, err) = svraster(&[
+                "export",
+                run.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--format",
+                format,
+            ]);
+            assert!(!ok, "export --out {} was accepted", out.display());
+            assert!(err.contains("would replace"), "{err}");
+        }
+    }
+    assert_eq!(
+        snapshot(&photos),
+        before_photos,
+        "the dataset's photos changed"
+    );
+    assert_eq!(
+        std::fs::read(&model).unwrap(),
+        before_model,
+        "the model changed"
+    );
+    // Outside the inputs both still work.
+    let (ok, _, err) = svraster(&[
+        "export",
+        run.to_str().unwrap(),
+        "--out",
+        dir.path().join("voxels.ply").to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+}
