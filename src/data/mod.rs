@@ -115,6 +115,16 @@ pub fn load(
     background: [f32; 3],
     source: &SourceOptions,
 ) -> crate::error::Result<Dataset> {
+    if !dir.is_dir() {
+        return Err(crate::error::Error::Invalid(if dir.exists() {
+            format!("{}: is a file, not a dataset folder", dir.display())
+        } else {
+            format!(
+                "{}: not found (no such folder); check the dataset path",
+                dir.display()
+            )
+        }));
+    }
     let format = source.format.unwrap_or_else(|| detect_format(dir));
     let opts = CaptureOptions {
         images: source.images.clone(),

@@ -42,6 +42,16 @@ pub fn shots(dir: &Path) -> Result<(PathBuf, Vec<Shot>)> {
         let file = f["file_path"]
             .as_str()
             .ok_or_else(|| what("no `file_path`".into()))?;
+        // A key that is there must be a number (`"w": "512"` is not a missing `w`).
+        for key in [
+            "fl_x", "fl_y", "cx", "cy", "w", "h", "k1", "k2", "k3", "k4", "p1", "p2",
+        ] {
+            if let Some(v) = f.get(key).or_else(|| root.get(key)) {
+                if !v.is_null() && v.as_f64().is_none() {
+                    return Err(what(format!("`{key}` is {v}, not a number")));
+                }
+            }
+        }
         let get = |key: &str| f.get(key).or_else(|| root.get(key)).and_then(Value::as_f64);
         let need =
             |key: &str| get(key).ok_or_else(|| what(format!("no `{key}` (frame or global)")));

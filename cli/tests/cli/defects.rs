@@ -127,3 +127,46 @@ fn outputs_never_replace_inputs() {
     ]);
     assert!(ok, "{err}");
 }
+
+/// A dataset folder that does not exist is "not found" (it was reported as "not a
+/// Blender dataset", or as capture options given to one), and a nerfstudio key of the
+/// wrong type is a wrong type, not a missing key (`"w": "512"` was "no `w`").
+#[test]
+fn data_errors_say_what_is_wrong() {
+    let dir = tmp("data-errors");
+    let missing = dir.path().join("no-such-capture");
+    let out = dir.path().join("run");
+    for extra in [&[][..], &["--holdout", "4"][..]] {
+        let mut args = vec![
+            "train",
+            missing.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ];
+        args.extend_from_slice(extra);
+        let (ok, _, err) = svraster(&args);
+        assert!(!ok);
+        assert!(
+            err.contains("no-such-capture") && err.contains("not found"),
+            "{extra:?}: {err}"
+        );
+    }
+    let ns = dir.path().join("ns");
+    std::fs::create_dir_all(&ns).unwrap();
+    let pose = "[[1,0,0,0],[0,1,0,0],[0,0,1,4],[0,0,0,1]]";
+    std::fs::write(
+        ns.join("transforms.json"),
+        format!(
+            r#"{{"fl_x": 100, "w": "512", "h": 384, "frames": [{{"file_path": "images/a.png", "transform_matrix": {pose}}}]}}"#
+        ),
+    )
+    .unwrap();
+    let (ok, _, err) = svraster(&[
+        "train",
+        ns.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!ok);
+    assert!(err.contains("`w` is \"512\", not a number"), "{err}");
+}
