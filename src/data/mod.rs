@@ -120,7 +120,7 @@ pub fn load(
             format!("{}: is a file, not a dataset folder", dir.display())
         } else {
             format!(
-                "{}: not found (no such folder); check the dataset path",
+                "{}: dataset folder not found; check the path",
                 dir.display()
             )
         }));
