@@ -210,6 +210,12 @@ pub struct EvalMeshArgs {
 /// JSON object.
 pub fn run_eval_mesh(a: EvalMeshArgs) -> anyhow::Result<()> {
     use svraster::mesh::metrics;
+    if a.demo && a.truth.is_some() {
+        bail!(
+            "--demo and --truth are two ground truths (the demo scene's analytic surface, \
+             a point cloud): give one"
+        );
+    }
     let (positions, triangles) = ply::read(&a.mesh)?;
     if triangles.is_empty() {
         bail!("{} has no triangles", a.mesh.display());
@@ -251,6 +257,23 @@ pub fn run_eval_mesh(a: EvalMeshArgs) -> anyhow::Result<()> {
         report.insert("iou_per_view".into(), ious.into());
     }
     let eyes: Vec<[f64; 3]> = ds.frames.iter().map(|f| f.camera.origin()).collect();
+    if a.demo {
+        // The demo's cameras all sit at CAMERA_RADIUS from the origin (NeRF-synthetic
+        // scenes such as lego at other distances, captures anywhere).
+        let r = data::demo::CAMERA_RADIUS;
+        if let Some(e) = eyes
+            .iter()
+            .find(|e| ((e[0] * e[0] + e[1] * e[1] + e[2] * e[2]).sqrt() - r).abs() > 1e-6 * r)
+        {
+            bail!(
+                "--demo scores against the built-in demo scene, but {} is not the demo's \
+                 dataset (a camera at {:?}, not at distance {r} from the origin); give its \
+                 ground truth with --truth POINTS.ply",
+                a.data.display(),
+                e
+            );
+        }
+    }
     let truth = if a.demo {
         let threshold = a.threshold.unwrap_or(0.02);
         Some((

@@ -120,7 +120,9 @@ pub fn load(
             format!("{}: is a file, not a dataset folder", dir.display())
         } else {
             format!(
-                "{}: dataset folder not found; check the path",
+                "{}: dataset folder not found; pass the folder that holds transforms_*.json \
+                 (Blender), sparse/0 (COLMAP), transforms.json (nerfstudio), poses_bounds.npy \
+                 (LLFF) or cameras_sphere.npz (NeuS)",
                 dir.display()
             )
         }));

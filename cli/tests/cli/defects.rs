@@ -170,3 +170,65 @@ fn data_errors_say_what_is_wrong() {
     assert!(!ok);
     assert!(err.contains("`w` is \"512\", not a number"), "{err}");
 }
+
+/// `eval-mesh` refuses flags that contradict each other or the data: `--demo` with
+/// `--truth` (the truth was ignored), and `--demo` on a dataset that is not the demo's
+/// (lego was scored against the demo scene's surface).
+#[test]
+fn eval_mesh_refuses_conflicting_or_wrong_scene_flags() {
+    let dir = tmp("eval-mesh-flags");
+    let d = dir.path().to_str().unwrap();
+    let (ok, _, err) = svraster(&[
+        "demo",
+        "--out",
+        d,
+        "--size",
+        "16",
+        "--voxelize",
+        "--level",
+        "5",
+    ]);
+    assert!(ok, "demo failed: {err}");
+    let (run, data) = (dir.path().join("run"), dir.path().join("data"));
+    let ply = dir.path().join("m.ply");
+    let (ok, _, err) = svraster(&[
+        "mesh",
+        run.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--out",
+        ply.to_str().unwrap(),
+    ]);
+    assert!(ok, "mesh failed: {err}");
+    let (m, dt) = (ply.to_str().unwrap(), data.to_str().unwrap());
+    let (ok, _, err) = svraster(&["eval-mesh", m, "--data", dt, "--demo"]);
+    assert!(ok, "the demo's own data was refused: {err}");
+    let (ok, _, err) = svraster(&["eval-mesh", m, "--data", dt, "--demo", "--truth", m]);
+    assert!(!ok && err.contains("give one"), "{err}");
+    // The same dataset with every camera 25 % farther out: not the demo's.
+    let other = dir.path().join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    for e in std::fs::read_dir(&data).unwrap() {
+        let p = e.unwrap().path();
+        let name = p.file_name().unwrap().to_owned();
+        if p.extension().is_some_and(|x| x == "json") {
+            let mut doc: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+            for f in doc["frames"].as_array_mut().unwrap() {
+                for row in 0..3 {
+                    let t = f["transform_matrix"][row][3].as_f64().unwrap();
+                    f["transform_matrix"][row][3] = (t * 1.25).into();
+                }
+            }
+            std::fs::write(other.join(name), doc.to_string()).unwrap();
+        } else if p.is_dir() {
+            std::fs::create_dir_all(other.join(&name)).unwrap();
+            for img in std::fs::read_dir(&p).unwrap() {
+                let img = img.unwrap().path();
+                std::fs::copy(&img, other.join(&name).join(img.file_name().unwrap())).unwrap();
+            }
+        }
+    }
+    let (ok, _, err) = svraster(&["eval-mesh", m, "--data", other.to_str().unwrap(), "--demo"]);
+    assert!(!ok && err.contains("not the demo's dataset"), "{err}");
+}
