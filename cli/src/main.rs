@@ -164,6 +164,8 @@ enum Command {
     Eval {
         /// A .safetensors checkpoint, or a run directory holding model.safetensors.
         model: PathBuf,
+        /// Dataset directory whose held-out views are scored (Blender, COLMAP,
+        /// nerfstudio, LLFF or NeuS; see --format).
         #[arg(long)]
         data: PathBuf,
         /// Split to evaluate (default: test, else val when the dataset has no test split;
@@ -189,7 +191,7 @@ enum Command {
     Render {
         /// A .safetensors checkpoint, or a run directory holding model.safetensors.
         model: PathBuf,
-        /// Dataset directory (Blender, COLMAP, nerfstudio or LLFF).
+        /// Dataset directory (Blender, COLMAP, nerfstudio, LLFF or NeuS; see --format).
         #[arg(long)]
         data: PathBuf,
         /// Split to render (default: test, else val when the dataset has no test split;
@@ -203,7 +205,9 @@ enum Command {
         /// Output directory: one PNG per frame, named after the frame's file.
         #[arg(long)]
         out: PathBuf,
-        /// Also write NAME_depth.png.
+        /// Also write the depth: NAME_depth16.png (16-bit metric camera-z depth, 0 where
+        /// there is no surface), NAME_depth.json (its scale and range) and NAME_depth.png
+        /// (an 8-bit visualisation).
         #[arg(long)]
         depth: bool,
         /// Also write NAME_normal.png.

@@ -33,6 +33,7 @@ pub struct MeshArgs {
 
 pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
+    check_output(&a.out)?;
     let scene = super::render::load_model(&a.model)?;
     let mut ds = data::load(&a.data, &a.split, a.downscale, scene.background, &a.source)?;
     ds.to_model(&scene.world);
@@ -203,6 +204,33 @@ pub struct EvalMeshArgs {
     pub threshold: Option<f64>,
     pub max_dist: Option<f64>,
     pub json: bool,
+}
+
+/// The mesh's output is checked before the work (fusion and extraction take minutes on
+/// a real capture): not a folder, and its folder can be made and written to.
+fn check_output(out: &std::path::Path) -> anyhow::Result<()> {
+    if out.is_dir() {
+        bail!(
+            "--out {} is a folder; give the mesh's file name, e.g. mesh.ply",
+            out.display()
+        );
+    }
+    let dir = out
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
+    std::fs::create_dir_all(dir)
+        .with_context(|| format!("cannot create the directory of {}", out.display()))?;
+    let probe = dir.join(format!(".svraster-write-probe-{}", std::process::id()));
+    std::fs::write(&probe, b"").with_context(|| {
+        format!(
+            "cannot write into {} (for {})",
+            dir.display(),
+            out.display()
+        )
+    })?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
 }
 
 /// `svraster eval-mesh`: surface errors against the demo's analytic surface or a point

@@ -232,3 +232,67 @@ fn eval_mesh_refuses_conflicting_or_wrong_scene_flags() {
     let (ok, _, err) = svraster(&["eval-mesh", m, "--data", other.to_str().unwrap(), "--demo"]);
     assert!(!ok && err.contains("not the demo's dataset"), "{err}");
 }
+
+/// Help texts are complete: `eval --data` has one, every command that reads a dataset
+/// names NeuS among the layouts, and `render --depth` names every file it writes.
+#[test]
+fn help_texts_are_complete() {
+    let help = |cmd: &str| {
+        let (ok, out, err) = svraster(&[cmd, "--help"]);
+        assert!(ok, "{cmd} --help: {err}");
+        out
+    };
+    let eval = help("eval");
+    let data_help = eval
+        .lines()
+        .find(|l| l.trim_start().starts_with("--data <DATA>"))
+        .and_then(|l| l.split("<DATA>").nth(1))
+        .unwrap_or("")
+        .trim();
+    assert!(!data_help.is_empty(), "eval --data has no help:\n{eval}");
+    for cmd in ["train", "eval", "render"] {
+        assert!(help(cmd).contains("NeuS"), "{cmd} --help omits NeuS");
+    }
+    let render = help("render");
+    for f in ["NAME_depth16.png", "NAME_depth.json", "NAME_depth.png"] {
+        assert!(render.contains(f), "render --help omits {f}");
+    }
+}
+
+/// `mesh` checks that it can write its output before the work: an `--out` that is a
+/// folder, or whose folder cannot be made, fails before fusing (it failed after).
+#[test]
+fn mesh_checks_its_output_first() {
+    let dir = tmp("mesh-out");
+    let d = dir.path().to_str().unwrap();
+    let (ok, _, err) = svraster(&[
+        "demo",
+        "--out",
+        d,
+        "--size",
+        "16",
+        "--voxelize",
+        "--level",
+        "4",
+    ]);
+    assert!(ok, "demo failed: {err}");
+    let (run, data) = (dir.path().join("run"), dir.path().join("data"));
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, b"x").unwrap();
+    for out in [dir.path().to_path_buf(), file.join("m.ply")] {
+        let (ok, _, err) = svraster(&[
+            "mesh",
+            run.to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(!ok, "{}: accepted", out.display());
+        assert!(
+            !err.contains("← mesh level"),
+            "{}: the mesh was extracted before the output was checked: {err}",
+            out.display()
+        );
+    }
+}
