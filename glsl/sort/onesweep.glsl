@@ -26,6 +26,7 @@
 #include "pass_state.glsl"
 #include "lookback.glsl"
 #include "sort_key.glsl"
+#include "sort_rank.glsl"
 
 #define WG 128
 #define KPT 16
@@ -55,9 +56,6 @@ shared uint s_rows[MAX_SG * RADIX]; // per-subgroup digit counters, then offsets
 shared uint s_base[RADIX];          // destination of the tile's first key of each digit
 shared uint s_fallback[RADIX];      // digit counts of a stalled predecessor tile
 
-uint popcount4(uvec4 m) {
-    return bitCount(m.x) + bitCount(m.y) + bitCount(m.z) + bitCount(m.w);
-}
 
 void main() {
     uint t = gl_LocalInvocationID.x;
@@ -80,7 +78,6 @@ void main() {
     uint sg = gl_SubgroupID;
     uint lane = gl_SubgroupInvocationID;
     uint sgsize = gl_SubgroupSize;
-    uvec4 lt = gl_SubgroupLtMask;
     uint chunk = tile * TILE + sg * (sgsize * KPT);
 
     // 1. Local ranking (uniform loop: every lane runs all KPT rounds).
@@ -100,38 +97,8 @@ void main() {
         bool valid = idx < n;
         KeyT key = k[r];
         uint d = uint(key >> pc.shift) & digit_mask;
-        // Lanes with the same digit: AND of one ballot per digit bit. Subgroups of up to
-        // 32 lanes (lavapipe, NVIDIA, Intel) need only the first mask word.
-        uint below, cnt;
-        if (sgsize == 8u && pc.generic_rank == 0u) {
-            // 8 lanes (lavapipe): compare digits through shuffles (one permute each)
-            // instead of 8 ballots (each a loop over the lanes there). An invalid lane
-            // carries a digit no valid lane has.
-            uint dd = valid ? d : 0xffffffffu;
-            uint match = 0u;
-            [[unroll]] for (uint i = 0u; i < 8u; i++)
-                match |= subgroupShuffle(dd, i) == dd ? (1u << i) : 0u;
-            below = bitCount(match & lt.x);
-            cnt = bitCount(match);
-        } else if (sgsize <= 32u) {
-            uint match = subgroupBallot(valid).x;
-            for (uint b = 0u; b < pc.bits; b++) {
-                bool set = ((d >> b) & 1u) != 0u;
-                uint bal = subgroupBallot(set).x;
-                match &= set ? bal : ~bal;
-            }
-            below = bitCount(match & lt.x);
-            cnt = bitCount(match);
-        } else {
-            uvec4 match = subgroupBallot(valid);
-            for (uint b = 0u; b < pc.bits; b++) {
-                bool set = ((d >> b) & 1u) != 0u;
-                uvec4 bal = subgroupBallot(set);
-                match &= set ? bal : ~bal;
-            }
-            below = popcount4(match & lt);
-            cnt = popcount4(match);
-        }
+        uvec3 rank = rank_in_subgroup(valid, d, pc.bits, pc.generic_rank == 0u);
+        uint below = rank.x, cnt = rank.y;
         uint prev = valid ? s_rows[sg * RADIX + d] : 0u;
         subgroupMemoryBarrierShared();
         subgroupBarrier();

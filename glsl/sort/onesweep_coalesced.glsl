@@ -30,6 +30,7 @@
 #include "pass_state.glsl"
 #include "lookback.glsl"
 #include "sort_key.glsl"
+#include "sort_rank.glsl"
 
 #define TILE (WG * KPT)
 #define RADIX 256
@@ -62,16 +63,6 @@ shared uint s_base[RADIX];     // fallback counts during look-back; then global 
 shared uint s_part[MAX_SG];    // subgroup sums of the digit scan
 shared uint s_jmax;            // look-back: the nearest tile a digit stalled on
 
-uint popcount4(uvec4 m) {
-    return bitCount(m.x) + bitCount(m.y) + bitCount(m.z) + bitCount(m.w);
-}
-uint lsb4(uvec4 m) {
-    return m.x != 0u ? findLSB(m.x)
-         : m.y != 0u ? 32u + findLSB(m.y)
-         : m.z != 0u ? 64u + findLSB(m.z)
-                     : 96u + findLSB(m.w);
-}
-
 void main() {
     uint t = gl_LocalInvocationID.x;
     if (t == 0u) s_tile = atomicAdd(pc.state.v[ST_TILE_CTR + pc.pass_index], 1u);
@@ -94,7 +85,6 @@ void main() {
     uint sg = gl_SubgroupID;
     uint lane = gl_SubgroupInvocationID;
     uint sgsize = gl_SubgroupSize;
-    uvec4 lt = gl_SubgroupLtMask;
     uint chunk = tile * TILE + sg * (sgsize * KPT);
 
     // 1. Load (coalesced: each subgroup owns a contiguous chunk, round-major), then rank
@@ -111,38 +101,8 @@ void main() {
     for (uint r = 0u; r < KPT; r++) {
         bool valid = chunk + r * sgsize + lane < n;
         uint d = uint(k[r] >> pc.shift) & digit_mask;
-        uint below, cnt, leader;
-        if (sgsize == 8u && pc.generic_rank == 0u) {
-            // 8 lanes: compare digits through shuffles (8 ballots are lane loops on
-            // lavapipe). An invalid lane carries a digit no valid lane has.
-            uint dd = valid ? d : 0xffffffffu;
-            uint match = 0u;
-            [[unroll]] for (uint i = 0u; i < 8u; i++)
-                match |= subgroupShuffle(dd, i) == dd ? (1u << i) : 0u;
-            below = bitCount(match & lt.x);
-            cnt = bitCount(match);
-            leader = findLSB(match);
-        } else if (sgsize <= 32u) {
-            uint match = subgroupBallot(valid).x;
-            for (uint b = 0u; b < pc.bits; b++) {
-                bool set = ((d >> b) & 1u) != 0u;
-                uint bal = subgroupBallot(set).x;
-                match &= set ? bal : ~bal;
-            }
-            below = bitCount(match & lt.x);
-            cnt = bitCount(match);
-            leader = valid ? findLSB(match) : lane;
-        } else {
-            uvec4 match = subgroupBallot(valid);
-            for (uint b = 0u; b < pc.bits; b++) {
-                bool set = ((d >> b) & 1u) != 0u;
-                uvec4 bal = subgroupBallot(set);
-                match &= set ? bal : ~bal;
-            }
-            below = popcount4(match & lt);
-            cnt = popcount4(match);
-            leader = valid ? lsb4(match) : lane;
-        }
+        uvec3 rank = rank_in_subgroup(valid, d, pc.bits, pc.generic_rank == 0u);
+        uint below = rank.x, cnt = rank.y, leader = rank.z;
         // The lowest lane of each digit's run adds the run to the subgroup's row; the
         // others get the old value from it. The next round's adds follow this round's:
         // its shuffle waits for them.
