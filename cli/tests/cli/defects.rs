@@ -171,25 +171,30 @@ fn data_errors_say_what_is_wrong() {
     assert!(err.contains("`w` is \"512\", not a number"), "{err}");
 }
 
+/// The demo scene voxelized down to `level` in `dir` (no training): its run and data.
+fn voxelized_demo(dir: &std::path::Path, level: u32) -> (PathBuf, PathBuf) {
+    let level = level.to_string();
+    let (ok, _, err) = svraster(&[
+        "demo",
+        "--out",
+        dir.to_str().unwrap(),
+        "--size",
+        "16",
+        "--voxelize",
+        "--level",
+        &level,
+    ]);
+    assert!(ok, "demo failed: {err}");
+    (dir.join("run"), dir.join("data"))
+}
+
 /// `eval-mesh` refuses flags that contradict each other or the data: `--demo` with
 /// `--truth` (the truth was ignored), and `--demo` on a dataset that is not the demo's
 /// (lego was scored against the demo scene's surface).
 #[test]
 fn eval_mesh_refuses_conflicting_or_wrong_scene_flags() {
     let dir = tmp("eval-mesh-flags");
-    let d = dir.path().to_str().unwrap();
-    let (ok, _, err) = svraster(&[
-        "demo",
-        "--out",
-        d,
-        "--size",
-        "16",
-        "--voxelize",
-        "--level",
-        "5",
-    ]);
-    assert!(ok, "demo failed: {err}");
-    let (run, data) = (dir.path().join("run"), dir.path().join("data"));
+    let (run, data) = voxelized_demo(dir.path(), 5);
     let ply = dir.path().join("m.ply");
     let (ok, _, err) = svraster(&[
         "mesh",
@@ -264,19 +269,7 @@ fn help_texts_are_complete() {
 #[test]
 fn mesh_checks_its_output_first() {
     let dir = tmp("mesh-out");
-    let d = dir.path().to_str().unwrap();
-    let (ok, _, err) = svraster(&[
-        "demo",
-        "--out",
-        d,
-        "--size",
-        "16",
-        "--voxelize",
-        "--level",
-        "4",
-    ]);
-    assert!(ok, "demo failed: {err}");
-    let (run, data) = (dir.path().join("run"), dir.path().join("data"));
+    let (run, data) = voxelized_demo(dir.path(), 4);
     let file = dir.path().join("a-file");
     std::fs::write(&file, b"x").unwrap();
     for out in [dir.path().to_path_buf(), file.join("m.ply")] {
