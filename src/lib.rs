@@ -17,6 +17,7 @@ pub mod camera;
 pub mod data;
 pub mod error;
 pub mod eval;
+pub mod field;
 pub mod fsio;
 pub mod gpu;
 pub mod mesh;

@@ -11,6 +11,9 @@ mod borrowed;
 mod capture;
 mod checkpoint;
 mod data;
+// The f64 references index like the formulas they spell out.
+#[allow(clippy::needless_range_loop)]
+mod field;
 mod host;
 mod loss;
 mod mesh;

@@ -5,6 +5,7 @@ mod bench;
 mod bench_report;
 mod bench_sort;
 mod export;
+mod field;
 mod info;
 mod mesh;
 mod plot;
@@ -113,6 +114,10 @@ enum Command {
         /// (a reference model for rendering benchmarks; tools/bench_render.sh).
         #[arg(long)]
         voxelize: bool,
+        /// Also write per-primitive label images, OUT/labels/{train,val,test}/r_i.png
+        /// (8-bit: 40·(primitive + 1), background 0), for `svraster fuse`.
+        #[arg(long)]
+        labels: bool,
     },
     /// Train a model on the train split of a dataset (Blender, COLMAP, nerfstudio or LLFF).
     Train {
@@ -223,6 +228,58 @@ enum Command {
         /// the `ss` it was trained with).
         #[arg(long)]
         ss: Option<f32>,
+        /// Render a field made by `svraster fuse` instead of colour: per frame
+        /// NAME_field.png (labels: the arg-max class's 8-bit value, 0 where nothing is
+        /// hit; features: the first three principal components as colour, the
+        /// projection in field_pca.json) and NAME_field.npy (H×W×C float32: class
+        /// probabilities or features).
+        #[arg(long)]
+        field: Option<PathBuf>,
+        /// With a label --field: folder of truth label PNGs (NAME.png per frame) to score
+        /// it against: IoU per class, printed and written to field_scores.json.
+        #[arg(long)]
+        truth: Option<PathBuf>,
+        /// Threshold the --truth labels at 128 into {0, 255} (soft masks).
+        #[arg(long)]
+        mask: bool,
+        /// (default: the run's own when MODEL is a run directory)
+        #[command(flatten)]
+        source: DataArgs,
+    },
+    /// Fuse per-view labels or features into a model's voxels (paper §3.2.4): each voxel
+    /// takes the mean of the values of the pixels its rays contribute to, weighted by its
+    /// blending weight in each. Render the field with `render --field`.
+    Fuse {
+        /// A .safetensors checkpoint, or a run directory holding model.safetensors.
+        model: PathBuf,
+        /// Dataset the model was trained on.
+        #[arg(long)]
+        data: PathBuf,
+        /// Folder with one file per frame of the split, named after the frame's image:
+        /// NAME.png (8-bit labels: each distinct value a class; masks are {0, 255}) or
+        /// NAME.npy (H×W×C float features, C ≤ 1024, any size of the image's aspect
+        /// ratio: resampled by area).
+        #[arg(long)]
+        from: PathBuf,
+        /// Split whose views are fused.
+        #[arg(long, default_value = "train", value_parser = ["train", "val", "test", "all"])]
+        split: String,
+        /// Downscale factor of the views (default: the run's own when MODEL is a run
+        /// directory, else 1); the files are resampled to the downscaled views.
+        #[arg(long)]
+        downscale: Option<f64>,
+        /// Output field (safetensors, written atomically).
+        #[arg(long)]
+        out: PathBuf,
+        /// Threshold label images at 128 into {0, 255} (soft-edged masks such as DTU's).
+        #[arg(long)]
+        mask: bool,
+        /// Supersampling factor (default: the model's).
+        #[arg(long)]
+        ss: Option<f32>,
+        /// Print a JSON summary.
+        #[arg(long)]
+        json: bool,
         /// (default: the run's own when MODEL is a run directory)
         #[command(flatten)]
         source: DataArgs,
@@ -351,6 +408,7 @@ pub fn run() -> anyhow::Result<()> {
             level,
             seed,
             voxelize,
+            labels,
         } => train::run_demo(
             &ctx,
             train::DemoArgs {
@@ -360,6 +418,7 @@ pub fn run() -> anyhow::Result<()> {
                 level,
                 seed,
                 voxelize,
+                labels,
             },
         )?,
         Command::Train {
@@ -506,6 +565,9 @@ pub fn run() -> anyhow::Result<()> {
             compare,
             samples,
             ss,
+            field,
+            truth,
+            mask,
             source,
         } => render::run_render(
             &ctx,
@@ -521,6 +583,35 @@ pub fn run() -> anyhow::Result<()> {
                 compare,
                 samples,
                 ss,
+                field,
+                truth,
+                mask,
+            },
+        )?,
+        Command::Fuse {
+            model,
+            data,
+            from,
+            split,
+            downscale,
+            out,
+            mask,
+            ss,
+            json,
+            source,
+        } => field::run_fuse(
+            &ctx,
+            field::FuseArgs {
+                downscale: downscale.unwrap_or_else(|| run_downscale(&model)),
+                source: run_source(&model, &source),
+                model,
+                data,
+                from,
+                split,
+                out,
+                mask,
+                ss,
+                json,
             },
         )?,
     }

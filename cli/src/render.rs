@@ -185,6 +185,12 @@ pub struct RenderArgs {
     pub samples: u32,
     /// Supersampling (None: the model's, [`svraster::scene::Scene::supersample`]).
     pub ss: Option<f32>,
+    /// Render this field (`svraster fuse`) instead of colour.
+    pub field: Option<PathBuf>,
+    /// Label images to score a label field against (IoU per class).
+    pub truth: Option<PathBuf>,
+    /// Threshold the truth labels at 128 into {0, 255}.
+    pub mask: bool,
 }
 
 /// Renders every frame of a split; returns (mean PSNR against the photos, ms per frame).
@@ -272,7 +278,7 @@ pub fn resolved(path: &Path) -> PathBuf {
 /// Renders are written as STEM.png per frame: inside the dataset they can replace its
 /// photos (`--out DATA/test` did), so the dataset's folder and everything in it are
 /// refused as the output.
-fn refuse_output_in_dataset(out: &Path, data: &Path) -> anyhow::Result<()> {
+pub fn refuse_output_in_dataset(out: &Path, data: &Path) -> anyhow::Result<()> {
     let (o, d) = (resolved(out), resolved(data));
     if o.starts_with(&d) {
         bail!(
@@ -286,6 +292,39 @@ fn refuse_output_in_dataset(out: &Path, data: &Path) -> anyhow::Result<()> {
 }
 
 pub fn run_render(ctx: &Context, a: RenderArgs) -> anyhow::Result<()> {
+    if let Some(field) = &a.field {
+        if a.depth || a.normal || a.compare {
+            bail!("--depth, --normal and --compare render colour; leave them out with --field");
+        }
+        let scene = load_model(&a.model)?;
+        let mut ds = data::load(&a.data, &a.split, a.downscale, scene.background, &a.source)?;
+        ds.to_model(&scene.world);
+        if ds.frames.is_empty() {
+            bail!("split `{}` of {} has no frames", a.split, a.data.display());
+        }
+        let opts = RenderOptions {
+            samples: a.samples,
+            supersample: a.ss.unwrap_or(scene.supersample),
+        };
+        let line = super::field::render_fields(
+            ctx,
+            &scene,
+            &ds.frames,
+            &opts,
+            &a.out,
+            &a.data,
+            &super::field::FieldRenderArgs {
+                field,
+                truth: a.truth.as_deref(),
+                mask: a.mask,
+            },
+        )?;
+        println!("{line}");
+        return Ok(());
+    }
+    if a.truth.is_some() || a.mask {
+        bail!("--truth and --mask score a field: pass it with --field FIELD.safetensors");
+    }
     let (psnr, ms) = render_split(ctx, &a)?;
     println!(
         "rendered split `{}` to {}: mean PSNR {psnr:.2} dB against the photos, {ms:.1} ms per frame (wall, incl. read-back and PNG)",

@@ -544,6 +544,8 @@ pub struct DemoArgs {
     pub level: u32,
     pub seed: u64,
     pub voxelize: bool,
+    /// Also write per-primitive label images (OUT/labels/SPLIT/r_i.png).
+    pub labels: bool,
 }
 
 /// `svraster demo`: generate the procedural dataset, train on it, evaluate and render
@@ -617,6 +619,9 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
         data_dir.display()
     );
     demo::write_dataset(&data_dir, &opts)?;
+    if a.labels {
+        demo::write_labels(&a.out, &opts)?;
+    }
     eprintln!("  done in {:.1} s", t.elapsed().as_secs_f64());
     let run = a.out.join("run");
     if run.exists() {
@@ -668,6 +673,9 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
             compare: true,
             samples: 1,
             ss: None,
+            field: None,
+            truth: None,
+            mask: false,
         },
     )?;
     let how = if a.voxelize {

@@ -35,6 +35,12 @@ pub fn save_gray_png(path: &Path, width: u32, height: u32, gray: &[f32]) -> Resu
     save_png(path, width, height, &bytes, ExtendedColorType::L8)
 }
 
+/// Writes an 8-bit grayscale PNG of exact values (labels).
+pub fn save_gray8_png(path: &Path, width: u32, height: u32, gray: &[u8]) -> Result<()> {
+    check_len(path, width, height, gray.len())?;
+    save_png(path, width, height, gray, ExtendedColorType::L8)
+}
+
 /// Writes a 16-bit grayscale PNG from `width × height` row-major values (the encoder
 /// takes native-endian samples and stores them big-endian, as PNG requires).
 pub fn save_gray16_png(path: &Path, width: u32, height: u32, gray: &[u16]) -> Result<()> {

@@ -17,6 +17,7 @@ pub mod lens;
 pub mod llff;
 pub mod nerfstudio;
 pub mod neus;
+pub mod pixels;
 pub mod ply;
 pub mod shot;
 

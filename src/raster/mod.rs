@@ -121,6 +121,21 @@ struct RasterKernels {
     frame_ok: Kernel,
     seg_plan: Kernel,
     seg_compose: Kernel,
+    /// Field channels in place of colour ([`Renderer::set_voxel_colours`]), made on
+    /// first use.
+    field_colour: LazyKernel,
+}
+
+/// Three channels of a per-voxel field that frames composite in place of colour (see
+/// [`Renderer::set_voxel_colours`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct VoxelColours {
+    /// Device address of the field: `voxels × channels` f32, voxel-major.
+    pub address: u64,
+    /// Channels per voxel.
+    pub channels: u32,
+    /// First of the three channels rendered as r, g, b (channels past the last read 0).
+    pub first: u32,
 }
 
 /// Host-frame settings of the frames recorded from now on (see `host/`).
@@ -190,6 +205,8 @@ pub struct Renderer {
     host: Option<HostFrame>,
     /// Incomplete frames rendered again (`render_to_device`).
     grown: u64,
+    /// A field composited in place of colour ([`Renderer::set_voxel_colours`]).
+    voxel_colours: Option<VoxelColours>,
 }
 
 impl Renderer {
@@ -208,6 +225,7 @@ impl Renderer {
             frame_ok: Kernel::new(ctx, &kernels::RASTER_FRAME_OK)?,
             seg_plan: Kernel::new(ctx, &kernels::RASTER_SEG_PLAN)?,
             seg_compose: Kernel::new(ctx, &kernels::RASTER_SEG_COMPOSE)?,
+            field_colour: LazyKernel::new(&kernels::RASTER_FIELD_COLOUR),
         };
         Self::with_kernels(ctx, Arc::new(k))
     }
@@ -278,6 +296,7 @@ impl Renderer {
             counters_on: false,
             host: None,
             grown: 0,
+            voxel_colours: None,
         })
     }
 
@@ -289,6 +308,16 @@ impl Renderer {
     #[doc(hidden)]
     pub fn set_generic_walk(&mut self, on: bool) {
         self.generic_walk = on;
+    }
+
+    /// Makes the frames recorded from now on composite three channels of a per-voxel
+    /// field instead of the voxels' SH colour, over a zero background: the image's
+    /// r, g, b are then Σ_k T_k α_k f_k of channels `first..first + 3` (unclamped, any
+    /// sign), its alpha, depth and normals unchanged. `None` restores colour. The field
+    /// must hold `voxels × channels` floats of the scene rendered and stay alive until
+    /// the frames complete (the library's field renderer: `crate::field`).
+    pub fn set_voxel_colours(&mut self, colours: Option<VoxelColours>) {
+        self.voxel_colours = colours;
     }
 
     /// Chooses what the frames recorded from now on accumulate besides colour, opacity,

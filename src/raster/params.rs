@@ -102,6 +102,16 @@ push_constants!(RASTER_FRAME_SETUP, SetupPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub(super) struct FieldPush {
+    pub(super) frame: u64,
+    pub(super) field: u64,
+    pub(super) channels: u32,
+    pub(super) first: u32,
+}
+push_constants!(RASTER_FIELD_COLOUR, FieldPush);
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 pub(super) struct FrameOkPush {
     pub(super) stats: u64,
     pub(super) sort_state: u64,

@@ -4,7 +4,7 @@
 
 use ash::vk;
 
-use super::params::{ChunkPush, FrameParams, ParamsPush, SetupPush};
+use super::params::{ChunkPush, FieldPush, FrameParams, ParamsPush, SetupPush};
 use super::plan::Plan;
 use super::{FrameStats, RenderOptions, Renderer, CHANNELS, STAT_ARGS, STAT_USED, TILE};
 use crate::camera::Camera;
@@ -98,8 +98,9 @@ impl Renderer {
                 cam_fine[2].1 as f32,
             ],
             unit: unit as f32,
-            // Host frames are premultiplied over the host's own image: no background.
-            bg: if self.host.is_some() {
+            // Host frames are premultiplied over the host's own image, and fields are
+            // composited over nothing: no background.
+            bg: if self.host.is_some() || self.voxel_colours.is_some() {
                 [0.0; 3]
             } else {
                 scene.background
@@ -190,6 +191,16 @@ impl Renderer {
         let n = scene.voxels;
         self.k.preprocess.dispatch_1d(cmd, &pa, n);
         recorder::barrier(&ctx, cmd);
+        if let Some(f) = self.voxel_colours {
+            let push = FieldPush {
+                frame: self.params.address(),
+                field: f.address,
+                channels: f.channels,
+                first: f.first,
+            };
+            self.k.field_colour.get(&ctx)?.dispatch_1d(cmd, &push, n);
+            recorder::barrier(&ctx, cmd);
+        }
         if let Some(t) = ts {
             t.mark(cmd, "preprocess");
         }

@@ -468,6 +468,17 @@ impl Backward {
             .ok_or_else(|| Error::Invalid("Backward::dout before Backward::prepare".into()))
     }
 
+    /// The per-voxel gradients of the last recorded backward before its per-voxel
+    /// stage (`VG_STRIDE` floats per voxel: 8 corner densities, then rgb at `VG_RGB`,
+    /// normal, priority), valid once it completed: with only colour gradients in
+    /// [`Backward::dout`], the rgb of voxel k are Σ_pixels T_k α_k · dout (the adjoint
+    /// of compositing, which field fusion reads: `crate::field`).
+    pub(crate) fn voxel_gradients(&self) -> Result<&Buffer> {
+        self.vgrad.buffer().ok_or_else(|| {
+            Error::Invalid("Backward::voxel_gradients before Backward::prepare".into())
+        })
+    }
+
     /// Compare-and-swap float adds that gave up (must stay 0; see atomic_f32.glsl).
     /// Reads host-visible memory: no submission, the backward must have completed.
     pub fn read_lost(&self) -> Result<u32> {

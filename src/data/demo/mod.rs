@@ -25,8 +25,8 @@ mod scene;
 mod voxelize;
 use crate::error::{Error, Result};
 pub use scene::{
-    light_dir, nearest_primitive, ray_hit, render_rgba, shade, signed_distance, Hit, Primitive,
-    Shape, AMBIENT, DIFFUSE, PRIMITIVES, SUPERSAMPLE,
+    label_value, light_dir, nearest_primitive, ray_hit, render_labels, render_rgba, shade,
+    signed_distance, Hit, Primitive, Shape, AMBIENT, DIFFUSE, PRIMITIVES, SUPERSAMPLE,
 };
 pub use voxelize::{
     diffuse_color, explin, inverse_explin, raw_density, solid_density, surface_samples, voxelize,
@@ -172,6 +172,30 @@ pub fn demo_splits(opts: &DemoOptions) -> Result<Vec<DemoSplit>> {
         });
     }
     Ok(out)
+}
+
+/// Writes per-primitive label images of every split ([`render_labels`]: 40 times the
+/// primitive's index plus one, background 0) as 8-bit gray PNGs `labels/{train,val,test}/r_i.png` in `dir`,
+/// named like the frames, for field fusion (`svraster fuse --from DIR/labels/train`).
+pub fn write_labels(dir: &Path, opts: &DemoOptions) -> Result<()> {
+    let splits = demo_splits(opts)?;
+    let mut jobs: Vec<(PathBuf, &Camera)> = Vec::new();
+    for split in &splits {
+        let sub_dir = dir.join("labels").join(split.name);
+        std::fs::create_dir_all(&sub_dir).map_err(|e| io_error(&sub_dir, e))?;
+        for (i, camera) in split.cameras.iter().enumerate() {
+            jobs.push((sub_dir.join(format!("r_{i}.png")), camera));
+        }
+    }
+    use rayon::prelude::*;
+    jobs.par_iter().try_for_each(|(path, camera)| {
+        crate::data::image::save_gray8_png(
+            path,
+            camera.width,
+            camera.height,
+            &render_labels(camera),
+        )
+    })
 }
 
 /// Writes the demo dataset to `dir`: `transforms_{train,val,test}.json` (NeRF-synthetic

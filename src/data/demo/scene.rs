@@ -319,6 +319,37 @@ pub fn render_rgba(camera: &Camera) -> Vec<[f32; 4]> {
     out
 }
 
+/// The 8-bit value of primitive `prim` in the demo's label images (`demo --labels`):
+/// 40·(prim + 1); the background is 0.
+pub fn label_value(prim: usize) -> u8 {
+    (40 * (prim + 1)) as u8
+}
+
+/// Per-pixel labels of the demo scene for `camera` (row-major, [`label_value`]): the
+/// most frequent of the pixel's [`SUPERSAMPLE`]² sub-samples (background 0 counts as a
+/// label; ties go to the lower value), the sub-sample rays as [`render_rgba`]'s.
+pub fn render_labels(camera: &Camera) -> Vec<u8> {
+    let o = DVec3::from(camera.origin());
+    let n = SUPERSAMPLE;
+    let mut out = Vec::with_capacity(camera.width as usize * camera.height as usize);
+    for py in 0..camera.height {
+        for px in 0..camera.width {
+            let mut votes = [0u32; PRIMITIVES.len() + 1];
+            for sy in 0..n {
+                for sx in 0..n {
+                    let u = px as f64 + (sx as f64 + 0.5) / n as f64;
+                    let v = py as f64 + (sy as f64 + 0.5) / n as f64;
+                    let d = unit(camera.rotate(camera.camera_dir(u, v)).into());
+                    votes[ray_hit(o, d).map_or(0, |h| h.primitive + 1)] += 1;
+                }
+            }
+            let best = (0..votes.len()).fold(0, |b, i| if votes[i] > votes[b] { i } else { b });
+            out.push(if best == 0 { 0 } else { label_value(best - 1) });
+        }
+    }
+    out
+}
+
 /// `v` scaled to unit length (a true division, as the f64 references in tests/ do).
 pub(super) fn unit(v: DVec3) -> DVec3 {
     v / v.length()
