@@ -26,6 +26,9 @@ pub struct FuseArgs {
     pub mask: bool,
     pub ss: Option<f32>,
     pub json: bool,
+    /// Pair DIR's files with the dataset's views by natural name order instead of by
+    /// name (NeuS pairs `mask/` with `image/` this way).
+    pub by_order: bool,
 }
 
 /// One frame's source file.
@@ -36,7 +39,13 @@ enum Source {
 
 /// The file of every frame in `dir` (`STEM.png` labels or `STEM.npy` features, one kind
 /// for all), refusing frames without one.
-fn frame_sources(dir: &Path, frames: &[Frame]) -> anyhow::Result<Vec<Source>> {
+/// With `order` (view names, [`by_order_names`]), DIR's files in natural name order
+/// are those views' files instead.
+fn frame_sources(
+    dir: &Path,
+    frames: &[Frame],
+    order: Option<&[String]>,
+) -> anyhow::Result<Vec<Source>> {
     if !dir.is_dir() {
         bail!(
             "--from {}: not a folder; pass the folder holding one STEM.png (labels) or \
@@ -44,9 +53,33 @@ fn frame_sources(dir: &Path, frames: &[Frame]) -> anyhow::Result<Vec<Source>> {
             dir.display()
         );
     }
+    let files = source_files(dir)?;
+    let by_order: Option<std::collections::HashMap<&str, &PathBuf>> = match order {
+        Some(names) => {
+            if names.len() != files.len() {
+                bail!(
+                    "--by-order: {} holds {} .png/.npy files for {} views",
+                    dir.display(),
+                    files.len(),
+                    names.len()
+                );
+            }
+            Some(names.iter().map(String::as_str).zip(&files).collect())
+        }
+        None => None,
+    };
     let mut out = Vec::with_capacity(frames.len());
     let mut missing = Vec::new();
     for f in frames {
+        if let Some(map) = &by_order {
+            let p = map[f.name.as_str()].clone();
+            out.push(if p.extension().is_some_and(|e| e == "npy") {
+                Source::Features(p)
+            } else {
+                Source::Labels(p)
+            });
+            continue;
+        }
         let (png, npy) = (
             dir.join(format!("{}.png", f.name)),
             dir.join(format!("{}.npy", f.name)),
@@ -65,7 +98,8 @@ fn frame_sources(dir: &Path, frames: &[Frame]) -> anyhow::Result<Vec<Source>> {
     if !missing.is_empty() {
         bail!(
             "{} has no STEM.png or STEM.npy for {} of the split's {} frames ({}{}): the \
-             folder must hold one file per frame, named after the frame's image",
+             folder must hold one file per frame, named after the frame's image (or, with \
+             --by-order, one per view of the dataset in the views' order: it holds {})",
             dir.display(),
             missing.len(),
             frames.len(),
@@ -75,7 +109,8 @@ fn frame_sources(dir: &Path, frames: &[Frame]) -> anyhow::Result<Vec<Source>> {
                 .cloned()
                 .collect::<Vec<_>>()
                 .join(", "),
-            if missing.len() > 5 { ", ..." } else { "" }
+            if missing.len() > 5 { ", ..." } else { "" },
+            files.len()
         );
     }
     let labels = out
@@ -91,6 +126,45 @@ fn frame_sources(dir: &Path, frames: &[Frame]) -> anyhow::Result<Vec<Source>> {
         );
     }
     Ok(out)
+}
+
+/// The views `--by-order` pairs `dir`'s files with, in order: the split's frames when
+/// `dir` holds one file per frame, else every view of the dataset (a capture's `all`
+/// split) when it holds one per view.
+pub fn by_order_names(
+    dir: &Path,
+    frames: &[Frame],
+    all: impl FnOnce() -> anyhow::Result<Vec<String>>,
+) -> anyhow::Result<Vec<String>> {
+    let n = source_files(dir)?.len();
+    if n == frames.len() {
+        return Ok(frames.iter().map(|f| f.name.clone()).collect());
+    }
+    let all = all().ok();
+    if let Some(names) = all.as_ref().filter(|a| a.len() == n) {
+        return Ok(names.clone());
+    }
+    bail!(
+        "--by-order: {} holds {n} .png/.npy files, but the split has {} frames{}: it needs \
+         one file per frame of the split, or one per view of the dataset",
+        dir.display(),
+        frames.len(),
+        all.map_or(String::new(), |a| format!(
+            " and the dataset {} views",
+            a.len()
+        ))
+    )
+}
+
+/// The `.png` and `.npy` files of `dir` in natural name order.
+fn source_files(dir: &Path) -> anyhow::Result<Vec<PathBuf>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("cannot read {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e == "png" || e == "npy"))
+        .collect();
+    files.sort_by(|a, b| data::shot::natural_cmp(&a.to_string_lossy(), &b.to_string_lossy()));
+    Ok(files)
 }
 
 /// Refuses a source whose aspect ratio differs from its view's (more than 3 %, a
@@ -110,14 +184,14 @@ fn check_aspect(path: &Path, w: u32, h: u32, frame: &Frame) -> anyhow::Result<()
     Ok(())
 }
 
-/// Reads a label image, thresholded into {0, 255} with `mask`.
+/// Reads a label image, or with `mask` a mask as {0, 255} (mean of its channels
+/// above one half).
 fn read_labels(path: &Path, mask: bool) -> anyhow::Result<(u32, u32, Vec<u8>)> {
-    let (w, h, mut v) = pixels::load_labels(path)?;
-    if mask {
-        v.iter_mut()
-            .for_each(|x| *x = if *x > 127 { 255 } else { 0 });
-    }
-    Ok((w, h, v))
+    Ok(if mask {
+        pixels::load_mask(path)?
+    } else {
+        pixels::load_labels(path)?
+    })
 }
 
 /// The planar `[channels][height][width]` values of frame `i` at its view's size.
@@ -196,7 +270,15 @@ pub fn run_fuse(ctx: &Context, a: FuseArgs) -> anyhow::Result<()> {
     if ds.frames.is_empty() {
         bail!("split `{}` of {} has no frames", a.split, a.data.display());
     }
-    let sources = frame_sources(&a.from, &ds.frames)?;
+    let order: Option<Vec<String>> = if a.by_order {
+        Some(by_order_names(&a.from, &ds.frames, || {
+            let all = data::load(&a.data, "all", a.downscale, scene.background, &a.source)?;
+            Ok(all.frames.into_iter().map(|f| f.name).collect())
+        })?)
+    } else {
+        None
+    };
+    let sources = frame_sources(&a.from, &ds.frames, order.as_deref())?;
     let (kind, channels) = field_kind(&sources, a.mask)?;
     if let FieldKind::Labels(c) = &kind {
         if c.len() > 32 && !a.mask {
@@ -237,6 +319,7 @@ pub fn run_fuse(ctx: &Context, a: FuseArgs) -> anyhow::Result<()> {
     f.meta
         .insert("supersample".into(), opts.supersample.to_string());
     f.meta.insert("mask".into(), a.mask.to_string());
+    f.meta.insert("by_order".into(), a.by_order.to_string());
     if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create the folder of --out {}", a.out.display()))?;
@@ -279,6 +362,9 @@ pub struct FieldRenderArgs<'a> {
     pub field: &'a Path,
     pub truth: Option<&'a Path>,
     pub mask: bool,
+    /// `--by-order`: the views the truth files pair with in natural name order
+    /// ([`by_order_names`]).
+    pub order: Option<Vec<String>>,
 }
 
 /// Per-class intersection and union counts.
@@ -329,6 +415,10 @@ pub fn render_fields(
         FieldKind::Labels(c) => c.clone(),
         FieldKind::Features => Vec::new(),
     };
+    let truth_files = match a.truth {
+        Some(dir) => Some(frame_sources(dir, frames, a.order.as_deref())?),
+        None => None,
+    };
     let mut pooled = vec![Overlap::default(); classes.len()];
     let mut per_view: Vec<Vec<Option<f64>>> = Vec::new();
     let mut progress = super::progress::Progress::new("render field", frames.len() as u64);
@@ -346,16 +436,14 @@ pub fn render_fields(
             let (labels, probs) = f.labels_of(&img)?;
             data::image::save_gray8_png(&out.join(format!("{stem}_field.png")), w, h, &labels)?;
             pixels::save_npy(&out.join(format!("{stem}_field.npy")), &shape, &probs)?;
-            if let Some(dir) = a.truth {
-                let path = dir.join(format!("{}.png", frame.name));
-                let (tw, th, truth) = read_labels(&path, a.mask)?;
-                if (tw, th) != (w, h) {
-                    bail!(
-                        "{} is {tw}×{th}, the render {w}×{h}: truth labels are scored at the \
-                         rendered size (pass the --downscale the truth was made at)",
-                        path.display()
-                    );
-                }
+            if let Some(t) = &truth_files {
+                let path = match &t[i] {
+                    Source::Labels(p) | Source::Features(p) => p,
+                };
+                let (tw, th, truth) = read_labels(path, a.mask)?;
+                check_aspect(path, tw, th, frame)?;
+                // Scored at the rendered size: the truth resampled by area (majority).
+                let truth = pixels::resample_labels(tw, th, &truth, w, h);
                 let mut view = Vec::new();
                 for (k, &c) in classes.iter().enumerate() {
                     let (mut inter, mut union) = (0u64, 0u64);

@@ -239,9 +239,14 @@ enum Command {
         /// it against: IoU per class, printed and written to field_scores.json.
         #[arg(long)]
         truth: Option<PathBuf>,
-        /// Threshold the --truth labels at 128 into {0, 255} (soft masks).
+        /// Read the --truth images as masks: {0, 255}, 255 where the mean of their
+        /// channels is above one half (soft masks such as DTU's).
         #[arg(long)]
         mask: bool,
+        /// Pair the --truth files with the dataset's views in natural name order (one per
+        /// view of the whole dataset) instead of by name: NeuS/DTU masks.
+        #[arg(long)]
+        by_order: bool,
         /// (default: the run's own when MODEL is a run directory)
         #[command(flatten)]
         source: DataArgs,
@@ -271,9 +276,15 @@ enum Command {
         /// Output field (safetensors, written atomically).
         #[arg(long)]
         out: PathBuf,
-        /// Threshold label images at 128 into {0, 255} (soft-edged masks such as DTU's).
+        /// Read the label images as masks: {0, 255}, 255 where the mean of their channels
+        /// is above one half (soft-edged masks such as DTU's).
         #[arg(long)]
         mask: bool,
+        /// Pair the files of --from with the dataset's views in natural name order
+        /// (one file per view of the whole dataset) instead of by name: NeuS/DTU masks
+        /// (mask/000.png … for image/000000.png …).
+        #[arg(long)]
+        by_order: bool,
         /// Supersampling factor (default: the model's).
         #[arg(long)]
         ss: Option<f32>,
@@ -568,6 +579,7 @@ pub fn run() -> anyhow::Result<()> {
             field,
             truth,
             mask,
+            by_order,
             source,
         } => render::run_render(
             &ctx,
@@ -586,6 +598,7 @@ pub fn run() -> anyhow::Result<()> {
                 field,
                 truth,
                 mask,
+                by_order,
             },
         )?,
         Command::Fuse {
@@ -596,6 +609,7 @@ pub fn run() -> anyhow::Result<()> {
             downscale,
             out,
             mask,
+            by_order,
             ss,
             json,
             source,
@@ -610,6 +624,7 @@ pub fn run() -> anyhow::Result<()> {
                 split,
                 out,
                 mask,
+                by_order,
                 ss,
                 json,
             },

@@ -189,8 +189,10 @@ pub struct RenderArgs {
     pub field: Option<PathBuf>,
     /// Label images to score a label field against (IoU per class).
     pub truth: Option<PathBuf>,
-    /// Threshold the truth labels at 128 into {0, 255}.
+    /// Read the truth labels as masks ({0, 255}).
     pub mask: bool,
+    /// Pair the truth files with the dataset's views by natural name order.
+    pub by_order: bool,
 }
 
 /// Renders every frame of a split; returns (mean PSNR against the photos, ms per frame).
@@ -293,6 +295,9 @@ pub fn refuse_output_in_dataset(out: &Path, data: &Path) -> anyhow::Result<()> {
 
 pub fn run_render(ctx: &Context, a: RenderArgs) -> anyhow::Result<()> {
     if let Some(field) = &a.field {
+        if a.by_order && a.truth.is_none() {
+            bail!("--by-order pairs the --truth files with the views: pass --truth DIR");
+        }
         if a.depth || a.normal || a.compare {
             bail!("--depth, --normal and --compare render colour; leave them out with --field");
         }
@@ -317,13 +322,30 @@ pub fn run_render(ctx: &Context, a: RenderArgs) -> anyhow::Result<()> {
                 field,
                 truth: a.truth.as_deref(),
                 mask: a.mask,
+                order: match (a.by_order, &a.truth) {
+                    (true, Some(dir)) => {
+                        Some(super::field::by_order_names(dir, &ds.frames, || {
+                            let all = data::load(
+                                &a.data,
+                                "all",
+                                a.downscale,
+                                scene.background,
+                                &a.source,
+                            )?;
+                            Ok(all.frames.into_iter().map(|f| f.name).collect())
+                        })?)
+                    }
+                    _ => None,
+                },
             },
         )?;
         println!("{line}");
         return Ok(());
     }
-    if a.truth.is_some() || a.mask {
-        bail!("--truth and --mask score a field: pass it with --field FIELD.safetensors");
+    if a.truth.is_some() || a.mask || a.by_order {
+        bail!(
+            "--truth, --mask and --by-order score a field: pass it with --field FIELD.safetensors"
+        );
     }
     let (psnr, ms) = render_split(ctx, &a)?;
     println!(

@@ -676,6 +676,7 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
             field: None,
             truth: None,
             mask: false,
+            by_order: false,
         },
     )?;
     let how = if a.voxelize {

@@ -56,6 +56,50 @@ pub fn load_labels(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
     Ok((w, h, values))
 }
 
+/// Reads a mask as labels {0, 255}: 255 where the mean of its colour channels exceeds
+/// one half (any PNG or JPEG [`super::image::load_rgba`] reads; soft edges, slightly
+/// different channels and 16 bits allowed). Returns (width, height, values).
+pub fn load_mask(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
+    let (w, h, rgba) = super::image::load_rgba(path)?;
+    let v = rgba
+        .iter()
+        .map(|p| if p[0] + p[1] + p[2] > 1.5 { 255 } else { 0 })
+        .collect();
+    Ok((w, h, v))
+}
+
+/// Resamples labels from `w × h` to `ow × oh`: each output pixel takes the label
+/// covering most of its footprint (exact area weights; ties go to the lower value).
+pub fn resample_labels(w: u32, h: u32, labels: &[u8], ow: u32, oh: u32) -> Vec<u8> {
+    if (w, h) == (ow, oh) {
+        return labels.to_vec();
+    }
+    let classes: Vec<u8> = {
+        let mut seen = [false; 256];
+        labels.iter().for_each(|&l| seen[l as usize] = true);
+        (0..=255u8).filter(|&l| seen[l as usize]).collect()
+    };
+    let k = classes.len();
+    let mut onehot = vec![0f32; labels.len() * k];
+    for (i, l) in labels.iter().enumerate() {
+        onehot[i * k + classes.binary_search(l).unwrap_or(0)] = 1.0;
+    }
+    let planes = resample_planar(w, h, k as u32, &onehot, ow, oh);
+    let np = (ow * oh) as usize;
+    (0..np)
+        .map(|p| {
+            let best = (0..k).fold(0, |b, c| {
+                if planes[c * np + p] > planes[b * np + p] {
+                    c
+                } else {
+                    b
+                }
+            });
+            classes[best]
+        })
+        .collect()
+}
+
 /// Reads an H×W×C float `.npy` (f32, f16 or f64; C-order) as (width, height,
 /// channels, row-major pixel-interleaved values). Refuses other shapes and NaN/∞.
 pub fn load_features(path: &Path) -> Result<(u32, u32, u32, Vec<f32>)> {

@@ -240,3 +240,104 @@ fn fuse_refuses_sources_it_cannot_use() {
     ]);
     assert!(!ok && err.contains("another model"), "{err}");
 }
+
+/// `--by-order` pairs files with views by natural name order (DTU's masks are named
+/// unlike its images) and gives the field of pairing by name; `--mask` reads soft,
+/// unequal-channel masks as {0, 255}; a truth of another size is scored after an area
+/// resample.
+#[test]
+fn fuse_pairs_by_order_and_scores_masks_of_any_size() {
+    let dir = tmp("fuse-order");
+    let (run, data, labels) = labelled_demo(dir.path());
+    // Masks (label > 0) as RGB with unequal channels, renamed m_0.png … (natural order), and the test
+    // split's at twice the size.
+    let masks = |split: &str, scale: u32| -> std::path::PathBuf {
+        let out = dir.path().join(format!("masks-{split}"));
+        std::fs::create_dir_all(&out).unwrap();
+        for e in std::fs::read_dir(labels.join(split)).unwrap() {
+            let p = e.unwrap().path();
+            let stem = p.file_stem().unwrap().to_str().unwrap().to_string();
+            let i: usize = stem.trim_start_matches("r_").parse().unwrap();
+            let (w, h, l) = svraster::data::pixels::load_labels(&p).unwrap();
+            let (ow, oh) = (w * scale, h * scale);
+            let rgb: Vec<[f32; 3]> = (0..oh * ow)
+                .map(|q| {
+                    let v = l[((q / ow / scale) * w + (q % ow) / scale) as usize];
+                    let f = if v > 0 { 0.98 } else { 0.02 };
+                    [f, f - 0.01, f + 0.01]
+                })
+                .collect();
+            svraster::data::image::save_rgb_png(&out.join(format!("m_{i}.png")), ow, oh, &rgb)
+                .unwrap();
+        }
+        out
+    };
+    let (train, test) = (masks("train", 1), masks("test", 2));
+    let fuse = |from: &Path, extra: &[&str], out: &str| {
+        let o = dir.path().join(out);
+        let mut args = vec![
+            "fuse",
+            &run,
+            "--data",
+            &data,
+            "--from",
+            from.to_str().unwrap(),
+            "--out",
+            o.to_str().unwrap(),
+            "--mask",
+        ];
+        args.extend_from_slice(extra);
+        let (ok, _, err) = svraster(&args);
+        (ok, err, o)
+    };
+    let (ok, err, _) = fuse(&train, &[], "a.safetensors");
+    assert!(!ok && err.contains("--by-order"), "{err}");
+    let (ok, err, by_order) = fuse(&train, &["--by-order"], "b.safetensors");
+    assert!(ok, "{err}");
+    // The same masks named after the frames.
+    let named = dir.path().join("named");
+    std::fs::create_dir_all(&named).unwrap();
+    for i in 0..60 {
+        std::fs::copy(
+            train.join(format!("m_{i}.png")),
+            named.join(format!("r_{i}.png")),
+        )
+        .unwrap();
+    }
+    let (ok, err, by_name) = fuse(&named, &[], "c.safetensors");
+    assert!(ok, "{err}");
+    let (fa, fb) = (
+        svraster::field::Field::load(&by_order).unwrap(),
+        svraster::field::Field::load(&by_name).unwrap(),
+    );
+    assert_eq!(fa.kind, svraster::field::FieldKind::Labels(vec![0, 255]));
+    assert!(
+        fa.values == fb.values,
+        "pairing by order gave another field than by name"
+    );
+    let out = dir.path().join("r");
+    let (ok, stdout, err) = svraster(&[
+        "render",
+        &run,
+        "--data",
+        &data,
+        "--field",
+        by_order.to_str().unwrap(),
+        "--split",
+        "test",
+        "--out",
+        out.to_str().unwrap(),
+        "--truth",
+        test.to_str().unwrap(),
+        "--mask",
+        "--by-order",
+    ]);
+    assert!(ok, "{err}");
+    let scores: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("field_scores.json")).unwrap())
+            .unwrap();
+    let fg = scores["classes"][1]["iou_mean_over_views"]
+        .as_f64()
+        .unwrap();
+    assert!(fg > 0.9, "foreground IoU {fg}: {stdout}");
+}
