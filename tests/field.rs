@@ -54,10 +54,18 @@ fn fused_sums_match_the_reference_weights() {
         let n = scene.num_voxels();
         let mut ref_sums = vec![0f64; c * n];
         let mut ref_w = vec![0f64; n];
-        for cam in &cams {
+        for (vi, cam) in cams.iter().enumerate() {
             let np = (cam.width * cam.height) as usize;
             let values: Vec<f32> = (0..c * np).map(|_| rng.range(-2.0, 2.0) as f32).collect();
-            fuser.add_view(&gpu, cam, &opts(), &values).unwrap();
+            if vi == 1 {
+                // A host application's own device buffer, values from a byte offset.
+                let mut padded = vec![7.0f32; 16];
+                padded.extend_from_slice(&values);
+                let buf = ctx.buffer_from("test.values", &padded).unwrap();
+                fuser.add_view_device(&gpu, cam, &opts(), &buf, 64).unwrap();
+            } else {
+                fuser.add_view(&gpu, cam, &opts(), &values).unwrap();
+            }
             let ev = forward_eval(&scene, cam, 1);
             for (p, contribs) in ev.contributors.iter().enumerate() {
                 for k in contribs {
