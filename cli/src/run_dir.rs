@@ -168,9 +168,16 @@ pub(super) fn save_run(run: &Path, trainer: &mut Trainer) -> anyhow::Result<()> 
     if let Err(e) = written {
         let _ = std::fs::remove_file(&model_tmp);
         let _ = std::fs::remove_file(&opt_tmp);
+        if model_path.exists() {
+            bail!(
+                "cannot write the checkpoint ({e}); the previous checkpoint in {} is \
+                 unchanged and resumable (free space, then --resume)",
+                run.display()
+            );
+        }
         bail!(
-            "cannot write the checkpoint ({e}); the previous checkpoint in {} is \
-             unchanged and resumable (free space, then --resume)",
+            "cannot write the first checkpoint ({e}): {} holds no checkpoint yet; free \
+             space, then run the same command again (the run starts over)",
             run.display()
         );
     }

@@ -84,6 +84,15 @@ pub struct RunSummary {
     pub interrupted: bool,
 }
 
+/// Whether `run` holds a checkpoint (either file of the pair; temporary files alone are
+/// a first checkpoint that was never completed): a directory with only config.json and
+/// stats.jsonl is a run stopped before its first checkpoint, which starts over.
+fn has_checkpoint(run: &Path) -> bool {
+    ["model.safetensors", super::run_dir::OPT_FILE]
+        .iter()
+        .any(|f| run.join(f).exists())
+}
+
 /// The path as written in config.json (absolute where it resolves).
 fn canonical(p: &Path) -> PathBuf {
     std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf())
@@ -156,6 +165,14 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
                 );
             }
         }
+        if !has_checkpoint(run) {
+            bail!(
+                "cannot resume: {} never saved a checkpoint (the run stopped before its \
+                 first); nothing is lost — run the same command without --resume to start it \
+                 again",
+                run.display()
+            );
+        }
         let (model_bytes, iter, state) = load_pair(run)?;
         let model_path = run.join("model.safetensors");
         let scene = checkpoint::from_bytes(&model_bytes)
@@ -178,9 +195,16 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             run_source,
         )
     } else {
-        if run.join("model.safetensors").exists() || cfg_path.exists() {
+        if has_checkpoint(run) {
             bail!(
                 "{} already holds a run: pass --resume to continue it, or choose another --out",
+                run.display()
+            );
+        }
+        if cfg_path.exists() {
+            eprintln!(
+                "{} holds a run that never saved a checkpoint (only its config.json and \
+                 log): starting over",
                 run.display()
             );
         }
@@ -206,7 +230,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         std::fs::create_dir_all(run)
             .with_context(|| format!("cannot create run directory {}", run.display()))?;
         _lock = Some(lock_run(run)?);
-        if run.join("model.safetensors").exists() || cfg_path.exists() {
+        if has_checkpoint(run) {
             bail!(
                 "{} already holds a run: pass --resume to continue it, or choose another --out",
                 run.display()
@@ -279,6 +303,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         });
         atomic_write(&cfg_path, serde_json::to_string_pretty(&doc)?.as_bytes())?;
         let _ = std::fs::remove_file(run.join("stats.jsonl"));
+        let _ = std::fs::remove_file(run.join("training.png"));
     }
     if ctx.info().is_cpu && !a.resume && preset == "synthetic" && cfg.iters > 5_000 {
         eprintln!(

@@ -289,3 +289,52 @@ fn mesh_checks_its_output_first() {
         );
     }
 }
+
+/// Defect 1: a run stopped before its first checkpoint (killed, or its first checkpoint
+/// could not be written) leaves config.json and stats.jsonl only. The failed write says
+/// there is no checkpoint (not that "the previous checkpoint is resumable"), `--resume`
+/// says exactly what to do, and the same `train` command starts it over.
+#[test]
+fn a_run_without_a_checkpoint_starts_over() {
+    let dir = tmp("no-checkpoint");
+    let data = small_data(dir.path(), "data", 1);
+    let run = dir.path().join("run");
+    std::fs::create_dir_all(&run).unwrap();
+    // The first checkpoint cannot be written (a full disk is ENOSPC; here a directory
+    // takes the optimizer's temporary path).
+    let blocker = run.join("optimizer.safetensors.tmp");
+    std::fs::create_dir(&blocker).unwrap();
+    let args = [
+        "train",
+        data.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--preset",
+        "quick",
+        "--iters",
+        "20",
+        "--set",
+        "grid_level=3",
+    ];
+    let (ok, _, err) = svraster(&args);
+    assert!(!ok && err.contains("no checkpoint yet"), "{err}");
+    assert!(!err.contains("resumable"), "{err}");
+    assert!(run.join("config.json").is_file() && !run.join("model.safetensors").exists());
+    std::fs::remove_dir(&blocker).unwrap();
+    let mut resume = args[..4].to_vec();
+    resume.push("--resume");
+    let (ok, _, err) = svraster(&resume);
+    assert!(
+        !ok && err.contains("never saved a checkpoint") && err.contains("without --resume"),
+        "{err}"
+    );
+    let (ok, _, err) = svraster(&args);
+    assert!(ok && err.contains("starting over"), "{err}");
+    assert!(run.join("model.safetensors").is_file());
+    let lines = stats_lines(&run);
+    let iters: Vec<u64> = lines.iter().filter_map(|l| l["iter"].as_u64()).collect();
+    assert!(
+        iters.windows(2).all(|w| w[0] < w[1]),
+        "one run's log: {iters:?}"
+    );
+}
