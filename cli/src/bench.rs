@@ -27,9 +27,10 @@ pub enum BenchCmd {
         data: std::path::PathBuf,
         #[arg(long, default_value = "test", value_parser = ["train", "val", "test"])]
         split: String,
-        /// Downscale factor of the cameras' images.
-        #[arg(long, default_value_t = 1.0)]
-        downscale: f64,
+        /// Downscale factor of the cameras' images (default: the run's own when MODEL is
+        /// a run directory, else 1).
+        #[arg(long)]
+        downscale: Option<f64>,
         /// Views used (the first N of the split).
         #[arg(long, default_value_t = 5)]
         views: usize,
@@ -39,9 +40,10 @@ pub enum BenchCmd {
         /// Samples per ray-voxel segment.
         #[arg(long, default_value_t = 1)]
         samples: u32,
-        /// Supersampling factor.
-        #[arg(long, default_value_t = 1.0)]
-        ss: f32,
+        /// Supersampling factor (default: the model's, i.e. the `ss` it was trained with,
+        /// as `render` and `eval` use).
+        #[arg(long)]
+        ss: Option<f32>,
         /// Entries per segment of a tile's list in the composite (0: segments off;
         /// default: the device's, 0 on CPU devices, 2048 on GPUs).
         #[arg(long)]
@@ -145,17 +147,18 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             json,
         } => bench_render(
             ctx,
-            &model,
-            &data,
-            &split,
-            downscale,
-            views,
-            runs,
-            svraster::raster::RenderOptions {
+            &RenderBench {
+                downscale: downscale.unwrap_or_else(|| super::run_downscale(&model)),
+                source: super::run_source(&model, &super::DataArgs::default()),
+                model,
+                data,
+                split,
+                views,
+                runs,
                 samples,
-                supersample: ss,
+                ss,
+                segments,
             },
-            segments,
             json,
         ),
         BenchCmd::Train {
@@ -219,26 +222,36 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
 }
 
 #[allow(clippy::too_many_arguments)]
-fn bench_render(
-    ctx: &Context,
-    model: &std::path::Path,
-    data: &std::path::Path,
-    split: &str,
+/// What `bench render` measures.
+struct RenderBench {
+    model: std::path::PathBuf,
+    data: std::path::PathBuf,
+    split: String,
     downscale: f64,
+    source: svraster::data::SourceOptions,
     views: usize,
     runs: u32,
-    opts: svraster::raster::RenderOptions,
+    samples: u32,
+    /// Supersampling (None: the model's).
+    ss: Option<f32>,
     segments: Option<u32>,
-    json: bool,
-) -> anyhow::Result<()> {
+}
+
+fn bench_render(ctx: &Context, b: &RenderBench, json: bool) -> anyhow::Result<()> {
     use svraster::raster::Renderer;
     use svraster::scene::SceneGpu;
-    if runs == 0 || views == 0 {
+    let (model, data, split, runs, segments) =
+        (&b.model, &b.data, b.split.as_str(), b.runs, b.segments);
+    if runs == 0 || b.views == 0 {
         bail!("--runs and --views must be at least 1");
     }
     let scene = super::render::load_model(model)?;
-    let mut cams = super::render::split_cameras(data, split, downscale, &scene)?;
-    cams.truncate(views);
+    let opts = svraster::raster::RenderOptions {
+        samples: b.samples,
+        supersample: b.ss.unwrap_or(scene.supersample),
+    };
+    let mut cams = super::render::split_cameras(data, split, b.downscale, &b.source, &scene)?;
+    cams.truncate(b.views);
     if cams.is_empty() {
         bail!("split `{split}` of {} has no frames", data.display());
     }
@@ -373,7 +386,7 @@ fn bench_render(
             median(&walk_groups)
         );
         println!("  per frame: {}", queue.text());
-        print_work(&work, ctx.info().subgroup_size);
+        print_work(&work, ctx.info().subgroup_size, "frame");
     }
     Ok(())
 }
@@ -571,7 +584,7 @@ fn bench_train(
                 println!("    {p:<18} {:>9.2} ms", median(&parts[p.as_str()]));
             }
         }
-        print_work(&work, ctx.info().subgroup_size);
+        print_work(&work, ctx.info().subgroup_size, "iteration");
     }
     Ok(())
 }

@@ -114,10 +114,9 @@ pub(super) fn work_json(w: &WorkCounters) -> serde_json::Value {
     serde_json::json!({ "forward": walk_json(&w.forward), "backward": walk_json(&w.backward) })
 }
 
-pub(super) fn print_work(w: &WorkCounters, subgroup: u32) {
-    println!(
-        "  work per iteration ({subgroup}-lane subgroups; trips = a subgroup visiting an entry):"
-    );
+/// Prints the walks' work `per` frame or iteration.
+pub(super) fn print_work(w: &WorkCounters, subgroup: u32, per: &str) {
+    println!("  work per {per} ({subgroup}-lane subgroups; trips = a subgroup visiting an entry):");
     for (name, c) in [("forward", &w.forward), ("backward", &w.backward)] {
         if c.subgroups == 0 {
             continue;

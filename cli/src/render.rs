@@ -361,9 +361,10 @@ pub fn split_cameras(
     data: &Path,
     split: &str,
     downscale: f64,
+    source: &data::SourceOptions,
     scene: &svraster::scene::Scene,
 ) -> anyhow::Result<Vec<Camera>> {
-    let mut ds = data::load_split(data, split, downscale, scene.background)?;
+    let mut ds = data::load(data, split, downscale, scene.background, source)?;
     ds.to_model(&scene.world);
     Ok(ds.frames.into_iter().map(|f| f.camera).collect())
 }

@@ -338,3 +338,65 @@ fn a_run_without_a_checkpoint_starts_over() {
         "one run's log: {iters:?}"
     );
 }
+
+/// Defect 10: `bench render RUN` measures frames as the run renders them — its
+/// downscale and its model's supersampling unless told otherwise — and labels the walk's
+/// work per frame, not per iteration.
+#[test]
+fn bench_render_uses_the_runs_settings_and_says_per_frame() {
+    let dir = tmp("bench-render-run");
+    let data = small_data(dir.path(), "data", 2);
+    let run = dir.path().join("run");
+    let (ok, _, err) = svraster(&[
+        "train",
+        data.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--preset",
+        "quick",
+        "--iters",
+        "10",
+        "--downscale",
+        "2",
+        "--set",
+        "grid_level=3",
+        "--set",
+        "ss=1.5",
+    ]);
+    assert!(ok, "{err}");
+    let bench = |extra: &[&str]| {
+        let mut args = vec![
+            "bench",
+            "render",
+            run.to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+            "--views",
+            "1",
+            "--runs",
+            "1",
+        ];
+        args.extend_from_slice(extra);
+        let (ok, out, err) = svraster(&args);
+        assert!(ok, "{err}");
+        out
+    };
+    let v: serde_json::Value = serde_json::from_str(&bench(&["--json"])).unwrap();
+    assert_eq!(
+        (v["width"].as_u64(), v["supersample"].as_f64()),
+        (Some(12), Some(1.5)),
+        "{v}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_str(&bench(&["--json", "--downscale", "1", "--ss", "1"])).unwrap();
+    assert_eq!(
+        (v["width"].as_u64(), v["supersample"].as_f64()),
+        (Some(24), Some(1.0)),
+        "{v}"
+    );
+    let text = bench(&[]);
+    assert!(
+        text.contains("work per frame") && !text.contains("per iteration"),
+        "{text}"
+    );
+}
