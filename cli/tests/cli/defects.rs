@@ -400,3 +400,17 @@ fn bench_render_uses_the_runs_settings_and_says_per_frame() {
         "{text}"
     );
 }
+
+/// Defect 11: a demo too large for this machine is refused before anything is written
+/// (it aborted on memory with a half-written dataset), with a size that fits.
+#[test]
+fn demo_too_large_is_refused_before_writing() {
+    let dir = tmp("demo-huge");
+    let out = dir.path().join("out");
+    let (ok, _, err) = svraster(&["demo", "--out", out.to_str().unwrap(), "--size", "16384"]);
+    assert!(
+        !ok && err.contains("use --size") && err.contains("GiB"),
+        "{err}"
+    );
+    assert!(!out.exists(), "the refused demo created {}", out.display());
+}
