@@ -7,8 +7,18 @@ use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-/// Seconds between the plain progress lines written when stderr is not a terminal.
+/// Seconds between the plain progress lines written when stderr is not a terminal
+/// (`SVRASTER_PROGRESS_EVERY` overrides: seconds > 0).
 const PLAIN_EVERY_S: f64 = 30.0;
+
+/// The plain lines' period: `SVRASTER_PROGRESS_EVERY` seconds, else [`PLAIN_EVERY_S`].
+fn plain_every_s() -> f64 {
+    std::env::var("SVRASTER_PROGRESS_EVERY")
+        .ok()
+        .and_then(|v| v.parse::<f64>().ok())
+        .filter(|v| v.is_finite() && *v > 0.0)
+        .unwrap_or(PLAIN_EVERY_S)
+}
 
 /// Progress of `total` steps of one job on stderr: an `indicatif` bar when stderr is a
 /// terminal; otherwise a plain line for the first step, then at most one every ~30 s,
@@ -19,6 +29,10 @@ pub(super) struct Progress {
     total: u64,
     last_line: Option<Instant>,
     quiet: bool,
+    every_s: f64,
+    /// Set by [`Progress::line_due`]: the step whose plain line was promised (the
+    /// caller measured its values for it); once used, lines come only at promised steps.
+    promised: Option<Option<u64>>,
 }
 
 impl Progress {
@@ -39,6 +53,8 @@ impl Progress {
             total,
             last_line: None,
             quiet: false,
+            every_s: plain_every_s(),
+            promised: None,
         }
     }
 
@@ -50,6 +66,8 @@ impl Progress {
             total: 0,
             last_line: None,
             quiet: true,
+            every_s: PLAIN_EVERY_S,
+            promised: None,
         }
     }
 
@@ -64,10 +82,41 @@ impl Progress {
             return;
         }
         let now = Instant::now();
-        if plain_line_due(self.last_line.map(|t| now - t), pos, self.total) {
+        let due = match self.promised {
+            Some(p) => p == Some(pos) || self.last_line.is_none() || pos >= self.total,
+            None => plain_line_due(
+                self.last_line.map(|t| now - t),
+                pos,
+                self.total,
+                self.every_s,
+            ),
+        };
+        if due {
             eprintln!("{} {pos}/{} {}", self.label, self.total, msg());
             self.last_line = Some(now);
         }
+    }
+
+    /// Whether [`Progress::update`] at step `pos` is to write a plain line (never for a
+    /// bar, which redraws as it likes), decided now and kept: the caller then measures
+    /// the values that line shows. Once called, plain lines come only at the steps it
+    /// promised (and the first and last).
+    pub(super) fn line_due(&mut self, pos: u64) -> bool {
+        let due = !self.quiet
+            && self.bar.is_none()
+            && plain_line_due(
+                self.last_line.map(|t| t.elapsed()),
+                pos,
+                self.total,
+                self.every_s,
+            );
+        self.promised = Some(due.then_some(pos));
+        due
+    }
+
+    /// Whether a terminal bar is shown.
+    pub(super) fn is_bar(&self) -> bool {
+        self.bar.is_some()
     }
 
     /// A line of its own (an event: an adaptive step, a saved checkpoint), above the bar.
@@ -98,10 +147,10 @@ impl Progress {
 
 /// Whether a plain (non-terminal) progress line is due for step `pos` of `total`, `since`
 /// the last one (None: none written yet).
-fn plain_line_due(since: Option<Duration>, pos: u64, total: u64) -> bool {
+fn plain_line_due(since: Option<Duration>, pos: u64, total: u64, every_s: f64) -> bool {
     match since {
         None => true,
-        Some(d) => pos >= total || d.as_secs_f64() >= PLAIN_EVERY_S,
+        Some(d) => pos >= total || d.as_secs_f64() >= every_s,
     }
 }
 
@@ -162,16 +211,16 @@ pub(super) fn fmt_duration(s: f64) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{plain_line_due, RateWindow};
+    use super::{plain_line_due, RateWindow, PLAIN_EVERY_S};
     use std::time::Duration;
 
     #[test]
     fn plain_lines_first_last_and_every_30_s() {
         let s = Duration::from_secs_f64;
-        assert!(plain_line_due(None, 1, 100));
-        assert!(!plain_line_due(Some(s(29.0)), 50, 100));
-        assert!(plain_line_due(Some(s(30.0)), 50, 100));
-        assert!(plain_line_due(Some(s(0.1)), 100, 100));
+        assert!(plain_line_due(None, 1, 100, PLAIN_EVERY_S));
+        assert!(!plain_line_due(Some(s(29.0)), 50, 100, PLAIN_EVERY_S));
+        assert!(plain_line_due(Some(s(30.0)), 50, 100, PLAIN_EVERY_S));
+        assert!(plain_line_due(Some(s(0.1)), 100, 100, PLAIN_EVERY_S));
     }
 
     #[test]

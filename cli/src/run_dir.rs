@@ -216,9 +216,19 @@ pub(super) fn load_pair(run: &Path) -> anyhow::Result<(Vec<u8>, u32, Vec<Vec<f32
             return Ok((pending, iter, state));
         }
     }
+    if let Err(e) = svraster::scene::checkpoint::from_bytes(&model) {
+        bail!(
+            "{} is damaged ({e}): the checkpoint of iteration {iter} cannot be resumed; \
+             restore the file from a copy of the run, or start a new run (another --out)",
+            model_path.display()
+        );
+    }
     bail!(
-        "{} and {OPT_FILE} are from different iterations; cannot resume safely",
-        model_path.display()
+        "{} does not match {} (saved together at iteration {iter}): one of the pair was \
+         replaced or modified since; restore both from one save, or start a new run \
+         (another --out)",
+        model_path.display(),
+        run.join(OPT_FILE).display()
     )
 }
 
@@ -291,12 +301,15 @@ pub(super) fn load_optimizer(path: &Path) -> anyhow::Result<(u32, u64, Vec<Vec<f
         if t.dtype() != Dtype::F32 || t.shape().len() != 1 {
             return Err(bad(format!("tensor `{name}` is not a 1-D F32 tensor")));
         }
-        out.push(
-            t.data()
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
-                .collect(),
-        );
+        let v: Vec<f32> = t
+            .data()
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+            .collect();
+        if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+            return Err(bad(format!("tensor `{name}` holds {} at entry {i}", v[i])));
+        }
+        out.push(v);
     }
     Ok((iter, hash, out))
 }

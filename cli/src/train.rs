@@ -364,6 +364,17 @@ fn curves(run: &Path) {
     }
 }
 
+/// `elapsed_s` of the last iteration line of a run's stats.jsonl (0 without one).
+fn last_elapsed(stats: &Path) -> f64 {
+    std::fs::read_to_string(stats)
+        .unwrap_or_default()
+        .lines()
+        .rev()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .find_map(|v| v["elapsed_s"].as_f64())
+        .unwrap_or(0.0)
+}
+
 /// Runs the remaining iterations with progress, stats.jsonl, checkpoints and Ctrl-C.
 fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
     catch_signals()?;
@@ -378,6 +389,10 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
         .with_context(|| format!("cannot open {}", stats_path.display()))?;
     let t0 = Instant::now();
     let first = trainer.iter();
+    // A resumed run's elapsed time continues from its log's last line (the log was
+    // truncated to the checkpoint).
+    let elapsed_before = last_elapsed(&stats_path);
+    let mut last_measure = t0;
     let mut shown = None;
     let mut window = RateWindow::new(30.0);
     window.push(first, 0.0);
@@ -403,11 +418,22 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
             });
         }
         let it = trainer.iter() + 1;
-        let measure = it.is_multiple_of(cfg.log_every) || it == cfg.iters || it == first + 1;
-        let info = trainer.step(measure)?;
+        let logged = it.is_multiple_of(cfg.log_every) || it == cfg.iters || it == first + 1;
+        // The progress shows current values: measured for each plain line, and about
+        // once a second under a bar (a measurement waits for the queue to drain).
+        let fresh = if progress.is_bar() {
+            last_measure.elapsed().as_secs_f64() >= 1.0
+        } else {
+            progress.line_due(u64::from(it))
+        };
+        let info = trainer.step(logged || fresh)?;
         if let Some(l) = info.losses {
             trainer.check_finite()?;
-            let el = t0.elapsed().as_secs_f64();
+            last_measure = Instant::now();
+            shown = Some(l);
+        }
+        if let Some(l) = info.losses.filter(|_| logged) {
+            let el = elapsed_before + t0.elapsed().as_secs_f64();
             let line = serde_json::json!({
                 "iter": info.iter,
                 "loss": l.loss, "mse": l.mse, "psnr": l.psnr, "ssim": l.ssim,
@@ -416,12 +442,11 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
                 "sh_degree": info.sh_degree, "ss": info.supersample, "entries": info.entries,
                 "voxels": trainer.voxels(), "grid_points": trainer.grid_points(),
                 "device_memory": trainer.device_memory(), "elapsed_s": el,
-                "it_per_s": (info.iter - first) as f64 / el.max(1e-9),
+                "it_per_s": (info.iter - first) as f64 / t0.elapsed().as_secs_f64().max(1e-9),
                 "queue": queue_json(trainer, &mut queue_last, info.iter),
             });
             writeln!(stats, "{line}")
                 .with_context(|| format!("cannot write {}", stats_path.display()))?;
-            shown = Some(l);
         }
         if let Some(r) = &info.adapt {
             let line = serde_json::json!({ "adapt": r });

@@ -443,8 +443,9 @@ impl Trainer {
         if self.adam.read_nonfinite()? {
             return Err(Error::Invalid(format!(
                 "a NaN or infinite value appeared in the gradients or parameters by \
-                 iteration {}; the run stopped without saving it. Lower the learning rates \
-                 (e.g. --set lr_geo=0.01) or resume from the last checkpoint",
+                 iteration {}; the run stopped without saving it. Resume from its last \
+                 checkpoint (--resume), or start a new run (another --out) with lower \
+                 learning rates, e.g. --set lr_geo=0.01 (--resume keeps the run's own)",
                 self.iter
             )));
         }

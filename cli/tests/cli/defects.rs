@@ -414,3 +414,136 @@ fn demo_too_large_is_refused_before_writing() {
     );
     assert!(!out.exists(), "the refused demo created {}", out.display());
 }
+
+/// Defect 5: `--resume` of a run whose model.safetensors is truncated, empty or changed,
+/// or whose optimizer file holds a NaN, names the damaged file and the way out (it said
+/// "model and optimizer are from different iterations", and a NaN ran into an error
+/// advising --set, which --resume refuses).
+#[test]
+fn resume_names_a_damaged_checkpoint_file() {
+    let dir = tmp("resume-damaged");
+    let data = small_data(dir.path(), "data", 4);
+    let run = dir.path().join("run");
+    let (ds, rs) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let (ok, _, err) = svraster(&[
+        "train",
+        ds,
+        "--out",
+        rs,
+        "--preset",
+        "quick",
+        "--iters",
+        "20",
+        "--set",
+        "grid_level=3",
+    ]);
+    assert!(ok, "{err}");
+    set_run_iters(&run, 30);
+    let model = run.join("model.safetensors");
+    let opt = run.join("optimizer.safetensors");
+    let (good_model, good_opt) = (std::fs::read(&model).unwrap(), std::fs::read(&opt).unwrap());
+    let resume = || svraster(&["train", ds, "--out", rs, "--resume"]);
+    // Truncated, empty.
+    for bytes in [&good_model[..good_model.len() / 2], &[][..]] {
+        std::fs::write(&model, bytes).unwrap();
+        let (ok, _, err) = resume();
+        assert!(
+            !ok && err.contains("model.safetensors is damaged") && err.contains("start a new run"),
+            "{err}"
+        );
+    }
+    // The lowest bit of the first SH coefficient changed: still a valid checkpoint, no
+    // longer the saved one.
+    let mut flipped = good_model.clone();
+    let header = u64::from_le_bytes(flipped[..8].try_into().unwrap()) as usize;
+    let meta: serde_json::Value = serde_json::from_slice(&flipped[8..8 + header]).unwrap();
+    let sh0 = meta["sh0"]["data_offsets"][0].as_u64().unwrap() as usize;
+    flipped[8 + header + sh0] ^= 0x01;
+    std::fs::write(&model, &flipped).unwrap();
+    let (ok, _, err) = resume();
+    assert!(
+        !ok && err.contains("does not match") && err.contains("optimizer.safetensors"),
+        "{err}"
+    );
+    std::fs::write(&model, &good_model).unwrap();
+    // A NaN in the optimizer's moments (the first value of its first tensor).
+    let mut nan = good_opt.clone();
+    let header = u64::from_le_bytes(nan[..8].try_into().unwrap()) as usize;
+    nan[8 + header..12 + header].copy_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(&opt, &nan).unwrap();
+    let (ok, _, err) = resume();
+    assert!(
+        !ok && err.contains("optimizer.safetensors is corrupt") && err.contains("NaN at entry 0"),
+        "{err}"
+    );
+    assert!(!err.contains("--set"), "{err}");
+    std::fs::write(&opt, &good_opt).unwrap();
+    let (ok, _, err) = resume();
+    assert!(ok, "the restored pair resumes: {err}");
+}
+
+/// Defect 6: the progress line shows the values of its own iteration (it showed
+/// iteration 1's loss and PSNR until the first logged iteration), and a resumed run's
+/// `elapsed_s` continues from the checkpoint's (it restarted at 0).
+#[test]
+fn progress_shows_current_values_and_elapsed_time_continues() {
+    let dir = tmp("progress-values");
+    let data = small_data(dir.path(), "data", 5);
+    let run = dir.path().join("run");
+    let (ds, rs) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let out = Command::new(env!("CARGO_BIN_EXE_svraster"))
+        .args([
+            "--validation",
+            "train",
+            ds,
+            "--out",
+            rs,
+            "--preset",
+            "quick",
+            "--iters",
+            "200",
+            "--set",
+            "grid_level=3",
+            "--set",
+            "log_every=1000",
+        ])
+        .env("SVRASTER_PROGRESS_EVERY", "0.02")
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{err}");
+    // Plain progress lines (stderr is not a terminal) between the first and the last.
+    let psnr: Vec<String> = err
+        .lines()
+        .filter(|l| l.starts_with("train ") && !l.starts_with("train 200/") && l.contains("PSNR"))
+        .filter_map(|l| {
+            l.split("PSNR ")
+                .nth(1)?
+                .split_whitespace()
+                .next()
+                .map(String::from)
+        })
+        .collect();
+    let distinct: std::collections::BTreeSet<&String> = psnr.iter().collect();
+    assert!(
+        psnr.len() >= 3 && distinct.len() >= 2,
+        "progress lines show stale values: {psnr:?}\n{err}"
+    );
+    set_run_iters(&run, 260);
+    let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);
+    assert!(ok, "{err}");
+    let at = |iter: u64| -> f64 {
+        logged(&run)
+            .iter()
+            .find(|l| l["iter"].as_u64() == Some(iter))
+            .and_then(|l| l["elapsed_s"].as_f64())
+            .unwrap_or_else(|| panic!("no line for iteration {iter}"))
+    };
+    assert!(
+        at(201) >= at(200) && at(260) >= at(201),
+        "elapsed_s {} → {} → {}",
+        at(200),
+        at(201),
+        at(260)
+    );
+}
