@@ -22,9 +22,10 @@ pub enum BenchCmd {
     Render {
         /// A .safetensors checkpoint, or a run directory holding model.safetensors.
         model: std::path::PathBuf,
-        /// Dataset whose cameras are rendered (any format `svraster train` reads).
+        /// Dataset whose cameras are rendered (any format `svraster train` reads;
+        /// default: the run's own when MODEL is a run directory).
         #[arg(long)]
-        data: std::path::PathBuf,
+        data: Option<std::path::PathBuf>,
         #[arg(long, default_value = "test", value_parser = ["train", "val", "test"])]
         split: String,
         /// Downscale factor of the cameras' images (default: the run's own when MODEL is
@@ -148,10 +149,10 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
         } => bench_render(
             ctx,
             &RenderBench {
+                data: super::data_or_run(data, &model)?,
                 downscale: downscale.unwrap_or_else(|| super::run_downscale(&model)),
                 source: super::run_source(&model, &super::DataArgs::default()),
                 model,
-                data,
                 split,
                 views,
                 runs,

@@ -170,9 +170,10 @@ enum Command {
         /// A .safetensors checkpoint, or a run directory holding model.safetensors.
         model: PathBuf,
         /// Dataset directory whose held-out views are scored (Blender, COLMAP,
-        /// nerfstudio, LLFF or NeuS; see --format).
+        /// nerfstudio, LLFF or NeuS; see --format; default: the run's own when MODEL is
+        /// a run directory).
         #[arg(long)]
-        data: PathBuf,
+        data: Option<PathBuf>,
         /// Split to evaluate (default: test, else val when the dataset has no test split;
         /// captures: test = every --holdout-th view, all = every view).
         #[arg(long, value_parser = ["train", "val", "test", "all"])]
@@ -196,9 +197,10 @@ enum Command {
     Render {
         /// A .safetensors checkpoint, or a run directory holding model.safetensors.
         model: PathBuf,
-        /// Dataset directory (Blender, COLMAP, nerfstudio, LLFF or NeuS; see --format).
+        /// Dataset directory (Blender, COLMAP, nerfstudio, LLFF or NeuS; see --format;
+        /// default: the run's own when MODEL is a run directory).
         #[arg(long)]
-        data: PathBuf,
+        data: Option<PathBuf>,
         /// Split to render (default: test, else val when the dataset has no test split;
         /// captures: test = every --holdout-th view, all = every view).
         #[arg(long, value_parser = ["train", "val", "test", "all"])]
@@ -257,9 +259,10 @@ enum Command {
     Fuse {
         /// A .safetensors checkpoint, or a run directory holding model.safetensors.
         model: PathBuf,
-        /// Dataset the model was trained on.
+        /// Dataset the model was trained on (default: the run's own when MODEL is a run
+        /// directory).
         #[arg(long)]
-        data: PathBuf,
+        data: Option<PathBuf>,
         /// Folder with one file per frame of the split, named after the frame's image:
         /// NAME.png (8-bit labels: each distinct value a class; masks are {0, 255}) or
         /// NAME.npy (H×W×C float features, C ≤ 1024, any size of the image's aspect
@@ -301,9 +304,10 @@ enum Command {
     Mesh {
         /// A .safetensors checkpoint, or a run directory holding model.safetensors.
         model: PathBuf,
-        /// Dataset the model was trained on (its views are fused).
+        /// Dataset the model was trained on (its views are fused; default: the run's own
+        /// when MODEL is a run directory).
         #[arg(long)]
-        data: PathBuf,
+        data: Option<PathBuf>,
         /// Output PLY file (written atomically).
         #[arg(long)]
         out: PathBuf,
@@ -485,6 +489,7 @@ pub fn run() -> anyhow::Result<()> {
             ss,
             source,
         } => {
+            let data = data_or_run(data, &model)?;
             let split = split.unwrap_or_else(|| default_split(&data));
             let downscale = downscale.unwrap_or_else(|| run_downscale(&model));
             let source = run_source(&model, &source);
@@ -512,6 +517,7 @@ pub fn run() -> anyhow::Result<()> {
             preview,
             source,
         } => {
+            let data = data_or_run(data, &model)?;
             let main_region = run_config(&model).and_then(|v| {
                 let c: [f64; 3] = serde_json::from_value(v["center"].clone()).ok()?;
                 let e = v["extent"].as_f64()?;
@@ -581,26 +587,29 @@ pub fn run() -> anyhow::Result<()> {
             mask,
             by_order,
             source,
-        } => render::run_render(
-            &ctx,
-            render::RenderArgs {
-                split: split.unwrap_or_else(|| default_split(&data)),
-                downscale: downscale.unwrap_or_else(|| run_downscale(&model)),
-                source: run_source(&model, &source),
-                model,
-                data,
-                out,
-                depth,
-                normal,
-                compare,
-                samples,
-                ss,
-                field,
-                truth,
-                mask,
-                by_order,
-            },
-        )?,
+        } => {
+            let data = data_or_run(data, &model)?;
+            render::run_render(
+                &ctx,
+                render::RenderArgs {
+                    split: split.unwrap_or_else(|| default_split(&data)),
+                    downscale: downscale.unwrap_or_else(|| run_downscale(&model)),
+                    source: run_source(&model, &source),
+                    model,
+                    data,
+                    out,
+                    depth,
+                    normal,
+                    compare,
+                    samples,
+                    ss,
+                    field,
+                    truth,
+                    mask,
+                    by_order,
+                },
+            )?
+        }
         Command::Fuse {
             model,
             data,
@@ -613,22 +622,25 @@ pub fn run() -> anyhow::Result<()> {
             ss,
             json,
             source,
-        } => field::run_fuse(
-            &ctx,
-            field::FuseArgs {
-                downscale: downscale.unwrap_or_else(|| run_downscale(&model)),
-                source: run_source(&model, &source),
-                model,
-                data,
-                from,
-                split,
-                out,
-                mask,
-                by_order,
-                ss,
-                json,
-            },
-        )?,
+        } => {
+            let data = data_or_run(data, &model)?;
+            field::run_fuse(
+                &ctx,
+                field::FuseArgs {
+                    downscale: downscale.unwrap_or_else(|| run_downscale(&model)),
+                    source: run_source(&model, &source),
+                    model,
+                    data,
+                    from,
+                    split,
+                    out,
+                    mask,
+                    by_order,
+                    ss,
+                    json,
+                },
+            )?
+        }
     }
     ctx.check_validation()?;
     Ok(())
@@ -654,6 +666,25 @@ fn default_split(data: &std::path::Path) -> String {
 }
 
 /// The run's config.json when `model` is a run directory or a file in one.
+/// `--data`, else the dataset recorded in the run's config.json when MODEL is a run
+/// directory (or a file in one).
+fn data_or_run(data: Option<PathBuf>, model: &std::path::Path) -> anyhow::Result<PathBuf> {
+    if let Some(d) = data {
+        return Ok(d);
+    }
+    match run_config(model).and_then(|v| v["data"].as_str().map(PathBuf::from)) {
+        Some(d) => {
+            eprintln!("data {} (the run's; --data to choose)", d.display());
+            Ok(d)
+        }
+        None => anyhow::bail!(
+            "--data is needed: {} is not a run directory whose config.json names its dataset; \
+             pass --data DATASET",
+            model.display()
+        ),
+    }
+}
+
 fn run_config(model: &std::path::Path) -> Option<serde_json::Value> {
     let dir = if model.is_dir() {
         model

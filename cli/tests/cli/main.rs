@@ -171,5 +171,6 @@ fn ply_info(path: &std::path::Path) -> (serde_json::Value, Vec<String>) {
 mod defects;
 mod demo_render_train;
 mod export_bench;
+mod features;
 mod field;
 mod resume_signals;
