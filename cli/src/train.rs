@@ -305,14 +305,6 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         let _ = std::fs::remove_file(run.join("stats.jsonl"));
         let _ = std::fs::remove_file(run.join("training.png"));
     }
-    if ctx.info().is_cpu && !a.resume && preset == "synthetic" && cfg.iters > 5_000 {
-        eprintln!(
-            "note: {} is a CPU device: {} iterations take hours here (0.2–1 s each at \
-             100²–200²); a few thousand (--iters 3000) reach most of the quality",
-            ctx.info().name,
-            cfg.iters
-        );
-    }
     let budget_source = trainer.budget_source().to_string();
     eprintln!(
         "training {} voxels (level-{} grid, voxels no camera sees removed; layout {}, \
@@ -330,7 +322,12 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         trainer.schedule().lr_geo,
         run.display()
     );
-    let summary = train_loop(&mut trainer, run)?;
+    let long_run = ctx.info().is_cpu.then(|| LongRun {
+        device: ctx.info().name.clone(),
+        downscale,
+        warned: false,
+    });
+    let summary = train_loop(&mut trainer, run, long_run)?;
     Ok(summary)
 }
 
@@ -376,7 +373,44 @@ fn last_elapsed(stats: &Path) -> f64 {
 }
 
 /// Runs the remaining iterations with progress, stats.jsonl, checkpoints and Ctrl-C.
-fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
+/// The one-time warning of a run that will take long on a CPU device.
+struct LongRun {
+    device: String,
+    downscale: f64,
+    warned: bool,
+}
+
+/// Minutes beyond which a run on a CPU device is said to be long.
+const LONG_RUN_MIN: f64 = 30.0;
+
+impl LongRun {
+    /// Once the rate is known (≥ 10 s or ≥ 50 iterations in), says how long the run will
+    /// take when that exceeds [`LONG_RUN_MIN`], and what shortens it.
+    fn check(&mut self, done: u32, left: u32, seconds: f64, rate: f64, p: &Progress) {
+        if self.warned || !(seconds >= 10.0 || done >= 50) || rate.is_nan() || rate <= 0.0 {
+            return;
+        }
+        self.warned = true;
+        let eta = f64::from(left) / rate;
+        if eta < LONG_RUN_MIN * 60.0 {
+            return;
+        }
+        p.line(&format!(
+            "note: at {rate:.1} it/s this run takes about {} more on {} (a CPU device). \
+             To shorten it: --downscale {} (a quarter of the pixels), fewer --iters (every \
+             milestone scales), or --preset quick; Ctrl-C saves and `--resume` continues",
+            fmt_duration(eta),
+            self.device,
+            self.downscale * 2.0
+        ));
+    }
+}
+
+fn train_loop(
+    trainer: &mut Trainer,
+    run: &Path,
+    mut long_run: Option<LongRun>,
+) -> anyhow::Result<RunSummary> {
     catch_signals()?;
     INTERRUPTS.store(0, Ordering::SeqCst);
     let cfg = trainer.config().clone();
@@ -474,6 +508,15 @@ fn train_loop(trainer: &mut Trainer, run: &Path) -> anyhow::Result<RunSummary> {
         }
         let done = info.iter == cfg.iters;
         window.push(info.iter, t0.elapsed().as_secs_f64());
+        if let Some(l) = long_run.as_mut() {
+            l.check(
+                info.iter - first,
+                cfg.iters - info.iter,
+                t0.elapsed().as_secs_f64(),
+                window.rate(),
+                &progress,
+            );
+        }
         progress.update(u64::from(info.iter), || {
             let rate = window.rate();
             let eta = (cfg.iters - info.iter) as f64 / rate;

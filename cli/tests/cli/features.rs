@@ -40,3 +40,69 @@ fn run_directories_know_their_data() {
     let (ok, _, err) = svraster(&["eval", bare.to_str().unwrap()]);
     assert!(!ok && err.contains("--data is needed"), "{err}");
 }
+
+/// A run that will take more than ~30 min on a CPU device says so once the rate is
+/// known, with what shortens it (a default lego run on lavapipe showed an ETA of
+/// 6 h 40 min without a word); on a GPU it says nothing.
+#[test]
+fn long_runs_on_cpu_devices_say_how_to_shorten_them() {
+    use std::io::BufRead as _;
+    let (ok, info, err) = svraster(&["info", "--json"]);
+    assert!(ok, "{err}");
+    let cpu = serde_json::from_str::<serde_json::Value>(&info).unwrap()["is_cpu"] == true;
+    let dir = tmp("long-run");
+    let data = small_data(dir.path(), "data", 7);
+    let run = dir.path().join("run");
+    // 2 million iterations: hours at the few hundred per second lavapipe makes here.
+    let mut child = Command::new(env!("CARGO_BIN_EXE_svraster"))
+        .args([
+            "train",
+            data.to_str().unwrap(),
+            "--out",
+            run.to_str().unwrap(),
+            "--preset",
+            "quick",
+            "--iters",
+            "2000000",
+            "--set",
+            "grid_level=3",
+            "--set",
+            "log_every=50",
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
+    let (mut note, mut seen) = (None, Vec::new());
+    for line in lines.by_ref() {
+        let line = line.unwrap();
+        if line.starts_with("note: at") {
+            note = Some(line.clone());
+        }
+        seen.push(line);
+        // Past the point where the note is due (≥ 50 iterations) by a margin.
+        let far = logged(&run).iter().any(|l| l["iter"].as_u64() >= Some(500));
+        if note.is_some() || far {
+            break;
+        }
+    }
+    let st = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(st.success());
+    let rest: Vec<String> = lines.map_while(Result::ok).collect();
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(130), "{seen:?} {rest:?}");
+    if cpu {
+        let note = note.unwrap_or_else(|| panic!("no long-run note: {seen:?}"));
+        assert!(
+            note.contains("more on")
+                && note.contains("--downscale 2")
+                && note.contains("--preset quick"),
+            "{note}"
+        );
+    } else {
+        assert!(note.is_none(), "a GPU run was called long: {note:?}");
+    }
+}
