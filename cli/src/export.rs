@@ -15,32 +15,51 @@ pub enum ExportFormat {
     Quantized,
 }
 
-pub fn run(model: &Path, format: ExportFormat, out: &Path) -> anyhow::Result<()> {
+pub fn run(model: &Path, format: ExportFormat, out: &Path, json: bool) -> anyhow::Result<()> {
     refuse_output_over_model(model, out)?;
     let scene = super::render::load_model(model)?;
-    match format {
+    let (name, line) = match format {
         ExportFormat::Ply => {
             let bytes = voxel_ply(&scene);
             svraster::fsio::write_atomic(out, &bytes)?;
-            println!(
-                "wrote {}: {} voxels as points (x y z size level density red green blue), {:.1} MiB",
-                out.display(),
-                scene.num_voxels(),
-                bytes.len() as f64 / (1 << 20) as f64
-            );
+            (
+                "ply",
+                format!(
+                    "wrote {}: {} voxels as points (x y z size level density red green blue), \
+                     {:.1} MiB",
+                    out.display(),
+                    scene.num_voxels(),
+                    bytes.len() as f64 / (1 << 20) as f64
+                ),
+            )
         }
         ExportFormat::Quantized => {
             let full = checkpoint::to_bytes(&scene)?.len();
             checkpoint::save_quantized(&scene, out)?;
             let q = std::fs::metadata(out)?.len() as usize;
-            println!(
-                "wrote {}: 8-bit quantized, {:.2} MiB ({:.0} % smaller than the {:.2} MiB checkpoint)",
-                out.display(),
-                q as f64 / (1 << 20) as f64,
-                100.0 * (1.0 - q as f64 / full as f64),
-                full as f64 / (1 << 20) as f64
-            );
+            (
+                "quantized",
+                format!(
+                    "wrote {}: 8-bit quantized, {:.2} MiB ({:.0} % smaller than the {:.2} MiB \
+                     checkpoint)",
+                    out.display(),
+                    q as f64 / (1 << 20) as f64,
+                    100.0 * (1.0 - q as f64 / full as f64),
+                    full as f64 / (1 << 20) as f64
+                ),
+            )
         }
+    };
+    if json {
+        let doc = serde_json::json!({
+            "out": out,
+            "format": name,
+            "bytes": std::fs::metadata(out)?.len(),
+            "voxels": scene.num_voxels(),
+        });
+        println!("{}", serde_json::to_string_pretty(&doc)?);
+    } else {
+        println!("{line}");
     }
     Ok(())
 }

@@ -376,7 +376,7 @@ struct Overlap {
 
 /// Renders the field of every frame: `STEM_field.png` and `STEM_field.npy`; for
 /// features also `field_pca.json`; with a truth folder, the IoU per class
-/// (`field_scores.json`). Returns a line for the user.
+/// (`field_scores.json`). Returns a line for the user and the same as JSON.
 pub fn render_fields(
     ctx: &Context,
     scene: &Scene,
@@ -385,7 +385,7 @@ pub fn render_fields(
     out: &Path,
     data_dir: &Path,
     a: &FieldRenderArgs,
-) -> anyhow::Result<String> {
+) -> anyhow::Result<(String, serde_json::Value)> {
     let f = Field::load(a.field)?;
     f.check_model(scene)
         .with_context(|| format!("--field {}", a.field.display()))?;
@@ -468,6 +468,13 @@ pub fn render_fields(
         frames.len(),
         out.display()
     );
+    let mut summary = serde_json::json!({
+        "out": out,
+        "field": a.field,
+        "channels": f.channels,
+        "frames": frames.len(),
+        "ms_per_frame": ms,
+    });
     if a.truth.is_some() {
         let mut scores = Vec::new();
         let mut means = Vec::new();
@@ -496,6 +503,7 @@ pub fn render_fields(
         });
         let path = out.join("field_scores.json");
         svraster::fsio::write_atomic(&path, serde_json::to_string_pretty(&doc)?.as_bytes())?;
+        summary["scores"] = doc;
         line += &format!(
             "\nIoU against the truth, mean over views per class: {}; mean over classes \
              (pooled pixels) {mean:.4} ({})",
@@ -503,5 +511,5 @@ pub fn render_fields(
             path.display()
         );
     }
-    Ok(line)
+    Ok((line, summary))
 }

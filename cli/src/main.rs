@@ -162,6 +162,10 @@ enum Command {
         /// Continue the run in --out from its last checkpoint.
         #[arg(long)]
         resume: bool,
+        /// Print a JSON summary on stdout at the end (run, model, iterations, seconds,
+        /// voxels, interrupted).
+        #[arg(long)]
+        json: bool,
         #[command(flatten)]
         source: DataArgs,
     },
@@ -249,6 +253,10 @@ enum Command {
         /// view of the whole dataset) instead of by name: NeuS/DTU masks.
         #[arg(long)]
         by_order: bool,
+        /// Print a JSON summary (split, out, frames, PSNR, ms per frame; with --field its
+        /// scores) instead of the line.
+        #[arg(long)]
+        json: bool,
         /// (default: the run's own when MODEL is a run directory)
         #[command(flatten)]
         source: DataArgs,
@@ -346,6 +354,10 @@ enum Command {
         /// the mesh, shaded.
         #[arg(long, default_value_t = 0)]
         preview: usize,
+        /// Print a JSON summary (file, vertices, triangles, area, open edges, level,
+        /// seconds per stage) instead of the line.
+        #[arg(long)]
+        json: bool,
         /// (default: the run's own when MODEL is a run directory)
         #[command(flatten)]
         source: DataArgs,
@@ -398,6 +410,9 @@ enum Command {
         /// The file to write (atomically).
         #[arg(long)]
         out: PathBuf,
+        /// Print a JSON summary (file, format, bytes, voxels) instead of the line.
+        #[arg(long)]
+        json: bool,
     },
     /// Benchmarks.
     Bench {
@@ -415,7 +430,12 @@ pub fn run() -> anyhow::Result<()> {
     match cli.cmd {
         Command::Info { json } => info::run(&ctx, json)?,
         Command::Bench { what } => bench::run(&ctx, what)?,
-        Command::Export { model, format, out } => export::run(&model, format, &out)?,
+        Command::Export {
+            model,
+            format,
+            out,
+            json,
+        } => export::run(&model, format, &out, json)?,
         Command::Demo {
             out,
             size,
@@ -447,6 +467,7 @@ pub fn run() -> anyhow::Result<()> {
             max_voxels,
             deterministic,
             resume,
+            json,
             source,
         } => {
             if let Some(n) = max_voxels {
@@ -461,6 +482,7 @@ pub fn run() -> anyhow::Result<()> {
                 }
                 set.push("deterministic=true".into());
             }
+            let out_dir = out.clone();
             let s = train::run_train(
                 &ctx,
                 &train::TrainArgs {
@@ -475,6 +497,9 @@ pub fn run() -> anyhow::Result<()> {
                     source: source.source(),
                 },
             )?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&s.json(&out_dir))?);
+            }
             if s.interrupted {
                 ctx.check_validation()?;
                 std::process::exit(130);
@@ -515,6 +540,7 @@ pub fn run() -> anyhow::Result<()> {
             vertex_colors,
             max_voxels,
             preview,
+            json,
             source,
         } => {
             let data = data_or_run(data, &model)?;
@@ -545,6 +571,7 @@ pub fn run() -> anyhow::Result<()> {
                     max_voxels,
                     preview,
                     main_region,
+                    json,
                 },
             )?
         }
@@ -586,6 +613,7 @@ pub fn run() -> anyhow::Result<()> {
             truth,
             mask,
             by_order,
+            json,
             source,
         } => {
             let data = data_or_run(data, &model)?;
@@ -607,6 +635,7 @@ pub fn run() -> anyhow::Result<()> {
                     truth,
                     mask,
                     by_order,
+                    json,
                 },
             )?
         }

@@ -29,6 +29,8 @@ pub struct MeshArgs {
     pub preview: usize,
     /// The run's main region (model frame: centre, edge) from its config.json.
     pub main_region: Option<([f64; 3], f64)>,
+    /// Print a JSON summary instead of the line.
+    pub json: bool,
 }
 
 pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
@@ -179,6 +181,23 @@ pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
     }
     let open = ex.mesh.open_edges();
     let area = ex.mesh.area() * scene.world.scale * scene.world.scale;
+    if a.json {
+        let doc = serde_json::json!({
+            "out": a.out,
+            "vertices": out.positions.len(),
+            "triangles": out.triangles.len(),
+            "area": area,
+            "open_edges": open,
+            "level": ex.level,
+            "seconds": t0.elapsed().as_secs_f64(),
+            "depth_render_seconds": render_s,
+            "cell_seconds": r.select_seconds,
+            "fusion_seconds": r.fuse_seconds,
+            "marching_cubes_seconds": r.mc_seconds,
+        });
+        println!("{}", serde_json::to_string_pretty(&doc)?);
+        return Ok(());
+    }
     println!(
         "wrote {}: {} vertices, {} triangles, area {area:.4e} (world units²), {open} open edges; \
          {:.1} s (depth renders {render_s:.1} s, cells {:.1} s, fusion {:.1} s, marching cubes {:.1} s)",

@@ -193,10 +193,13 @@ pub struct RenderArgs {
     pub mask: bool,
     /// Pair the truth files with the dataset's views by natural name order.
     pub by_order: bool,
+    /// Print a JSON summary instead of the line.
+    pub json: bool,
 }
 
-/// Renders every frame of a split; returns (mean PSNR against the photos, ms per frame).
-pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)> {
+/// Renders every frame of a split; returns (mean PSNR against the photos, ms per frame,
+/// frames).
+pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64, usize)> {
     let scene = load_model(&a.model)?;
     let mut ds = data::load(&a.data, &a.split, a.downscale, scene.background, &a.source)?;
     ds.to_model(&scene.world);
@@ -251,7 +254,7 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64)>
     let ms = t.elapsed().as_secs_f64() * 1e3;
     progress.finish();
     let n = ds.frames.len() as f64;
-    Ok((total_psnr / n, ms / n))
+    Ok((total_psnr / n, ms / n, ds.frames.len()))
 }
 
 /// `path` made absolute through its longest existing ancestor (symlinks resolved), so
@@ -311,7 +314,7 @@ pub fn run_render(ctx: &Context, a: RenderArgs) -> anyhow::Result<()> {
             samples: a.samples,
             supersample: a.ss.unwrap_or(scene.supersample),
         };
-        let line = super::field::render_fields(
+        let (line, summary) = super::field::render_fields(
             ctx,
             &scene,
             &ds.frames,
@@ -339,7 +342,11 @@ pub fn run_render(ctx: &Context, a: RenderArgs) -> anyhow::Result<()> {
                 },
             },
         )?;
-        println!("{line}");
+        if a.json {
+            println!("{}", serde_json::to_string_pretty(&summary)?);
+        } else {
+            println!("{line}");
+        }
         return Ok(());
     }
     if a.truth.is_some() || a.mask || a.by_order {
@@ -347,7 +354,18 @@ pub fn run_render(ctx: &Context, a: RenderArgs) -> anyhow::Result<()> {
             "--truth, --mask and --by-order score a field: pass it with --field FIELD.safetensors"
         );
     }
-    let (psnr, ms) = render_split(ctx, &a)?;
+    let (psnr, ms, frames) = render_split(ctx, &a)?;
+    if a.json {
+        let doc = serde_json::json!({
+            "split": a.split,
+            "out": a.out,
+            "frames": frames,
+            "psnr": psnr,
+            "ms_per_frame": ms,
+        });
+        println!("{}", serde_json::to_string_pretty(&doc)?);
+        return Ok(());
+    }
     println!(
         "rendered split `{}` to {}: mean PSNR {psnr:.2} dB against the photos, {ms:.1} ms per frame (wall, incl. read-back and PNG)",
         a.split,

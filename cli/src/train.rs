@@ -82,6 +82,22 @@ pub struct RunSummary {
     pub iters: u32,
     pub seconds: f64,
     pub interrupted: bool,
+    /// Voxels of the saved model.
+    pub voxels: u32,
+}
+
+impl RunSummary {
+    /// `train --json`: the run's summary on stdout.
+    pub fn json(&self, run: &Path) -> serde_json::Value {
+        serde_json::json!({
+            "run": run,
+            "model": run.join("model.safetensors"),
+            "iters": self.iters,
+            "seconds": self.seconds,
+            "voxels": self.voxels,
+            "interrupted": self.interrupted,
+        })
+    }
 }
 
 /// Whether `run` holds a checkpoint (either file of the pair; temporary files alone are
@@ -449,6 +465,7 @@ fn train_loop(
                 iters: trainer.iter(),
                 seconds: t0.elapsed().as_secs_f64(),
                 interrupted: true,
+                voxels: trainer.voxels(),
             });
         }
         let it = trainer.iter() + 1;
@@ -554,6 +571,7 @@ fn train_loop(
         iters: trainer.iter(),
         seconds: secs,
         interrupted: false,
+        voxels: trainer.voxels(),
     })
 }
 
@@ -857,6 +875,7 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
             iters: 0,
             seconds: t.elapsed().as_secs_f64(),
             interrupted: false,
+            voxels: scene.num_voxels() as u32,
         }
     } else {
         run_train(ctx, &train_args)?
@@ -896,6 +915,7 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
             truth: None,
             mask: false,
             by_order: false,
+            json: false,
         },
     )?;
     let how = if a.voxelize {

@@ -106,3 +106,92 @@ fn long_runs_on_cpu_devices_say_how_to_shorten_them() {
         assert!(note.is_none(), "a GPU run was called long: {note:?}");
     }
 }
+
+/// `train`, `render`, `mesh` and `export` print a JSON summary with `--json` (stdout is
+/// the JSON alone: parsed whole here).
+#[test]
+fn json_summaries() {
+    let dir = tmp("json-summaries");
+    let data = small_data(dir.path(), "data", 8);
+    let run = dir.path().join("run");
+    let rs = run.to_str().unwrap();
+    let json = |args: &[&str]| -> serde_json::Value {
+        let (ok, out, err) = svraster(args);
+        assert!(ok, "{args:?}: {err}");
+        serde_json::from_str(&out).unwrap_or_else(|e| panic!("{args:?}: {e}: {out}"))
+    };
+    let t = json(&[
+        "train",
+        data.to_str().unwrap(),
+        "--out",
+        rs,
+        "--preset",
+        "quick",
+        "--iters",
+        "10",
+        "--set",
+        "grid_level=3",
+        "--json",
+    ]);
+    assert_eq!(
+        (t["iters"].as_u64(), t["interrupted"].as_bool()),
+        (Some(10), Some(false)),
+        "{t}"
+    );
+    assert!(
+        t["voxels"].as_u64().unwrap() > 0 && t["seconds"].as_f64().is_some(),
+        "{t}"
+    );
+    let renders = dir.path().join("renders");
+    let r = json(&["render", rs, "--out", renders.to_str().unwrap(), "--json"]);
+    assert_eq!(r["frames"].as_u64(), Some(1), "{r}");
+    assert!(
+        r["psnr"].as_f64().unwrap() > 5.0 && r["ms_per_frame"].as_f64().is_some(),
+        "{r}"
+    );
+    // A model with a surface to mesh: the voxelized demo.
+    let demo = dir.path().join("demo");
+    let (ok, _, err) = svraster(&[
+        "demo",
+        "--out",
+        demo.to_str().unwrap(),
+        "--size",
+        "32",
+        "--voxelize",
+        "--level",
+        "5",
+    ]);
+    assert!(ok, "{err}");
+    let ply = dir.path().join("m.ply");
+    let m = json(&[
+        "mesh",
+        demo.join("run").to_str().unwrap(),
+        "--data",
+        demo.join("data").to_str().unwrap(),
+        "--out",
+        ply.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(
+        m["triangles"].as_u64().unwrap() > 100 && m["level"].as_u64().is_some(),
+        "{m}"
+    );
+    for format in ["ply", "quantized"] {
+        let out = dir.path().join(format!("e.{format}"));
+        let e = json(&[
+            "export",
+            rs,
+            "--format",
+            format,
+            "--out",
+            out.to_str().unwrap(),
+            "--json",
+        ]);
+        assert_eq!(e["format"], format);
+        assert_eq!(
+            e["bytes"].as_u64(),
+            Some(std::fs::metadata(&out).unwrap().len()),
+            "{e}"
+        );
+    }
+}
