@@ -119,9 +119,10 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     let run = &a.out;
     let cfg_path = run.join("config.json");
     let mut _lock = None;
+    let mut extended = false;
     let (mut cfg, init, opt_state, start_iter, preset, downscale, source) = if a.resume {
-        if a.iters.is_some() || a.seed.is_some() || !a.set.is_empty() {
-            bail!("--resume continues a run with its own config.json: drop --iters/--seed/--set (or start a new --out)");
+        if a.seed.is_some() || !a.set.is_empty() {
+            bail!("--resume continues a run with its own config.json: drop --seed/--set (or start a new --out)");
         }
         if !cfg_path.is_file() {
             bail!(
@@ -134,9 +135,24 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             .with_context(|| format!("cannot read {}", cfg_path.display()))?;
         let v: serde_json::Value = serde_json::from_str(&text)
             .with_context(|| format!("{} is not valid JSON", cfg_path.display()))?;
-        let cfg: TrainConfig = serde_json::from_value(v["config"].clone())
+        let mut cfg: TrainConfig = serde_json::from_value(v["config"].clone())
             .with_context(|| format!("{}: bad \"config\"", cfg_path.display()))?;
         cfg.validate()?;
+        if let Some(n) = a.iters.filter(|&n| n != cfg.iters) {
+            // An extension: the milestones stay where the run's schedule put them.
+            if n < cfg.iters {
+                bail!(
+                    "--resume --iters {n}: the run in {} is {} iterations long; --iters can \
+                     only extend it (to end it early, stop it: its last checkpoint stands)",
+                    run.display(),
+                    cfg.iters
+                );
+            }
+            cfg.schedule_iters = Some(cfg.schedule_iters.unwrap_or(cfg.iters));
+            cfg.iters = n;
+            cfg.validate()?;
+            extended = true;
+        }
         // The same run: the data, downscale and preset that shaped it.
         let run_data = v["data"].as_str().map(PathBuf::from);
         if let Some(d) = &run_data {
@@ -195,8 +211,11 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             .with_context(|| format!("cannot load {}", model_path.display()))?;
         if iter >= cfg.iters {
             bail!(
-                "the run in {} already completed its {} iterations",
+                "the run in {} already completed its {} iterations; to train it further, \
+                 pass --resume --iters N with N > {} (the extra iterations go on at the \
+                 schedule's final state)",
                 run.display(),
+                cfg.iters,
                 cfg.iters
             );
         }
@@ -320,6 +339,21 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         atomic_write(&cfg_path, serde_json::to_string_pretty(&doc)?.as_bytes())?;
         let _ = std::fs::remove_file(run.join("stats.jsonl"));
         let _ = std::fs::remove_file(run.join("training.png"));
+    } else if extended {
+        // An extension: config.json records the new end and the schedule's length.
+        let text = std::fs::read_to_string(&cfg_path)
+            .with_context(|| format!("cannot read {}", cfg_path.display()))?;
+        let mut v: serde_json::Value = serde_json::from_str(&text)
+            .with_context(|| format!("{} is not valid JSON", cfg_path.display()))?;
+        v["config"] = serde_json::to_value(&cfg)?;
+        v["schedule"] = serde_json::to_value(trainer.schedule())?;
+        atomic_write(&cfg_path, serde_json::to_string_pretty(&v)?.as_bytes())?;
+        eprintln!(
+            "extending the run to {} iterations: its milestones stay where its {}-iteration \
+             schedule put them; the rest trains at the schedule's final state",
+            cfg.iters,
+            cfg.schedule_iters.unwrap_or(cfg.iters)
+        );
     }
     let budget_source = trainer.budget_source().to_string();
     eprintln!(

@@ -29,6 +29,12 @@ pub const REFERENCE_ITERS: u32 = 20_000;
 pub struct TrainConfig {
     /// Iterations (one random training view each).
     pub iters: u32,
+    /// The run length the schedule's fractions refer to (None: `iters`). A run extended
+    /// past its end (`train --resume --iters N`) keeps its milestones where they were
+    /// and trains the extra iterations in the schedule's final state: full SH degree,
+    /// decayed learning rates, no further pruning or subdivision, TV off, checkpoints
+    /// at the same spacing.
+    pub schedule_iters: Option<u32>,
     /// Random seed (view order, supersampling draws).
     pub seed: u64,
     /// Level of the initial dense grid (paper h_lv: 2^level voxels per edge); voxels no
@@ -189,6 +195,7 @@ impl Default for TrainConfig {
     fn default() -> Self {
         TrainConfig {
             iters: REFERENCE_ITERS,
+            schedule_iters: None,
             seed: 0,
             grid_level: 6,
             center: [0.0; 3],
@@ -474,6 +481,12 @@ impl TrainConfig {
         if self.iters == 0 {
             return bad("iters", "must be ≥ 1");
         }
+        if self
+            .schedule_iters
+            .is_some_and(|s| s == 0 || s > self.iters)
+        {
+            return bad("schedule_iters", "must be in 1..=iters");
+        }
         if !(1..=10).contains(&self.grid_level) {
             return bad(
                 "grid_level",
@@ -587,7 +600,9 @@ impl TrainConfig {
     /// fell — while 0.1 throughout gave 31.54 dB at 3 000 and 32.42 at 20 000 (without
     /// the distortion loss; 32.25 at 6 000). Short runs are unchanged (they had 0.1).
     pub fn lr_geo_used(&self) -> f32 {
-        let f = (REFERENCE_ITERS as f64 / self.iters.max(1) as f64).sqrt();
+        // The schedule's length: an extended run keeps its rate.
+        let n = self.schedule_iters.unwrap_or(self.iters);
+        let f = (REFERENCE_ITERS as f64 / n.max(1) as f64).sqrt();
         self.lr_geo * f.clamp(1.0, self.lr_geo_scale_max.max(1.0) as f64) as f32
     }
 }

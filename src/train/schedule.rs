@@ -44,7 +44,10 @@ fn at(frac: f64, iters: u32) -> u32 {
 impl TrainConfig {
     /// The run's milestones in iterations.
     pub fn schedule(&self) -> Schedule {
-        let n = self.iters;
+        // Milestones are fractions of the schedule's length; a run extended past it
+        // (`schedule_iters` < `iters`) goes on in the final state.
+        let n = self.schedule_iters.unwrap_or(self.iters).min(self.iters);
+        let end = self.iters;
         let mut sh = Vec::new();
         // sh_every = 0: every degree from the first iteration (the reference's
         // sh_degree_init = 3).
@@ -55,10 +58,12 @@ impl TrainConfig {
         if self.checkpoint_every > 0.0 {
             let mut k = 1;
             loop {
-                let it = at(self.checkpoint_every * k as f64, n);
-                if it >= n || it == 0 {
+                // At the same spacing past the schedule's length, up to the end.
+                let it = (self.checkpoint_every * k as f64 * n as f64).round() as u64;
+                if it >= u64::from(end) || it == 0 {
                     break;
                 }
+                let it = it as u32;
                 if checkpoints.last() != Some(&it) {
                     checkpoints.push(it);
                 }

@@ -195,3 +195,68 @@ fn json_summaries() {
         );
     }
 }
+
+/// `train --resume --iters N` extends a finished run: the milestones stay where its
+/// schedule put them (config.json records `schedule_iters`), the extra iterations train
+/// at the schedule's final state with checkpoints at the same spacing; a shorter N is
+/// refused, and a finished run says how to extend it.
+#[test]
+fn resume_with_more_iterations_extends_a_finished_run() {
+    let dir = tmp("extend");
+    let data = small_data(dir.path(), "data", 9);
+    let run = dir.path().join("run");
+    let (ds, rs) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let (ok, _, err) = svraster(&[
+        "train",
+        ds,
+        "--out",
+        rs,
+        "--preset",
+        "quick",
+        "--iters",
+        "200",
+        "--set",
+        "grid_level=3",
+    ]);
+    assert!(ok, "{err}");
+    let config = || -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap()
+    };
+    let before = config();
+    let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);
+    assert!(
+        !ok && err.contains("already completed its 200") && err.contains("--iters N"),
+        "{err}"
+    );
+    let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume", "--iters", "150"]);
+    assert!(!ok && err.contains("can only extend"), "{err}");
+    let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume", "--iters", "300"]);
+    assert!(ok && err.contains("extending the run to 300"), "{err}");
+    assert_eq!(checkpoint_iter(&run), 300);
+    let after = config();
+    assert_eq!(after["config"]["iters"], 300);
+    assert_eq!(after["config"]["schedule_iters"], 200);
+    for k in [
+        "sh_degree_up",
+        "lr_decay_at",
+        "ss_from",
+        "tv_until",
+        "adapt",
+        "lr_geo",
+    ] {
+        assert_eq!(after["schedule"][k], before["schedule"][k], "{k} moved");
+    }
+    let cps: Vec<u64> = after["schedule"]["checkpoints"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c.as_u64().unwrap())
+        .collect();
+    assert_eq!(
+        cps,
+        [50, 100, 150, 200, 250],
+        "checkpoints at the same spacing"
+    );
+    let last = logged(&run).last().unwrap().clone();
+    assert_eq!(last["iter"], 300);
+}
