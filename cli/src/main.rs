@@ -166,6 +166,11 @@ enum Command {
         /// voxels, interrupted).
         #[arg(long)]
         json: bool,
+        /// Evaluate the held-out split (test, else val) every N iterations and at the end:
+        /// PSNR and SSIM into stats.jsonl (`{"eval": …}` lines), the progress and
+        /// training.png.
+        #[arg(long)]
+        eval_every: Option<u32>,
         #[command(flatten)]
         source: DataArgs,
     },
@@ -468,6 +473,7 @@ pub fn run() -> anyhow::Result<()> {
             deterministic,
             resume,
             json,
+            eval_every,
             source,
         } => {
             if let Some(n) = max_voxels {
@@ -495,6 +501,7 @@ pub fn run() -> anyhow::Result<()> {
                     set,
                     resume,
                     source: source.source(),
+                    eval_every,
                 },
             )?;
             if json {

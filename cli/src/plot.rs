@@ -127,12 +127,17 @@ pub fn training_chart(stats: &Path, png: &Path) -> anyhow::Result<()> {
     let text = std::fs::read_to_string(stats)
         .with_context(|| format!("cannot read {}", stats.display()))?;
     let (mut psnr, mut loss, mut voxels) = (Vec::new(), Vec::new(), Vec::new());
+    let mut held = Vec::new();
     for (i, line) in text.lines().enumerate() {
         if line.trim().is_empty() {
             continue;
         }
         let v: serde_json::Value = serde_json::from_str(line)
             .with_context(|| format!("{} line {}: not JSON", stats.display(), i + 1))?;
+        if let (Some(it), Some(p)) = (v["eval"]["iter"].as_f64(), v["eval"]["psnr"].as_f64()) {
+            held.push(Point::new(it, p)); // a held-out evaluation (--eval-every)
+            continue;
+        }
         let Some(it) = v["iter"].as_f64() else {
             continue; // an adaptive-step record
         };
@@ -149,9 +154,15 @@ pub fn training_chart(stats: &Path, png: &Path) -> anyhow::Result<()> {
         y_log,
         ..Default::default()
     };
+    let mut psnr_chart = chart("training PSNR", "PSNR (dB)", psnr, false);
+    if !held.is_empty() {
+        psnr_chart.title = "PSNR: training views, held-out views".into();
+        psnr_chart.series[0].name = "training".into();
+        psnr_chart.series.push(Series::new("held-out", held));
+    }
     save_row(
         &[
-            chart("training PSNR", "PSNR (dB)", psnr, false),
+            psnr_chart,
             chart("training loss", "loss", loss, true),
             chart("model size", "voxels", voxels, true),
         ],

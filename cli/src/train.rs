@@ -33,6 +33,8 @@ pub struct TrainArgs {
     pub resume: bool,
     /// How to read DATA (new run: as given; resume: the run's own).
     pub source: data::SourceOptions,
+    /// Evaluate the held-out split every N iterations (and at the end) into stats.jsonl.
+    pub eval_every: Option<u32>,
 }
 
 /// The preset of a new run: `--preset`, else the one the data's format calls for
@@ -377,7 +379,31 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         downscale,
         warned: false,
     });
-    let summary = train_loop(&mut trainer, run, long_run)?;
+    let held = match a.eval_every {
+        Some(0) => bail!("--eval-every must be at least 1"),
+        Some(every) => {
+            let split = super::default_split(&a.data);
+            let mut ds = data::load(&a.data, &split, downscale, cfg.background, &source)?;
+            if ds.frames.is_empty() {
+                bail!(
+                    "--eval-every: split `{split}` of {} has no frames",
+                    a.data.display()
+                );
+            }
+            ds.to_model(&cfg.world());
+            eprintln!(
+                "evaluating the {} views of split `{split}` every {every} iterations",
+                ds.frames.len()
+            );
+            Some(HeldOut {
+                ctx: ctx.clone(),
+                ds,
+                every,
+            })
+        }
+        None => None,
+    };
+    let summary = train_loop(&mut trainer, run, long_run, held.as_ref())?;
     Ok(summary)
 }
 
@@ -430,6 +456,42 @@ struct LongRun {
     warned: bool,
 }
 
+/// The held-out views `--eval-every` scores during training.
+struct HeldOut {
+    ctx: Context,
+    ds: data::Dataset,
+    every: u32,
+}
+
+impl HeldOut {
+    /// Scores the current model; the stats line and the progress line.
+    fn score(
+        &self,
+        trainer: &mut Trainer,
+        iter: u32,
+    ) -> anyhow::Result<(serde_json::Value, String)> {
+        let t = Instant::now();
+        let scene = trainer.scene()?;
+        let rep = svraster::eval::evaluate(
+            &self.ctx,
+            &scene,
+            &self.ds,
+            &RenderOptions::for_scene(&scene),
+            |_, _, _, _, _| {},
+        )?;
+        let secs = t.elapsed().as_secs_f64();
+        let line = serde_json::json!({ "eval": {
+            "iter": iter, "split": self.ds.split, "views": rep.views,
+            "psnr": rep.psnr, "ssim": rep.ssim, "seconds": secs,
+        }});
+        let msg = format!(
+            "eval @{iter}: {} views of `{}`: PSNR {:.2} dB, SSIM {:.4} ({secs:.1} s)",
+            rep.views, self.ds.split, rep.psnr, rep.ssim
+        );
+        Ok((line, msg))
+    }
+}
+
 /// Minutes beyond which a run on a CPU device is said to be long.
 const LONG_RUN_MIN: f64 = 30.0;
 
@@ -460,6 +522,7 @@ fn train_loop(
     trainer: &mut Trainer,
     run: &Path,
     mut long_run: Option<LongRun>,
+    held: Option<&HeldOut>,
 ) -> anyhow::Result<RunSummary> {
     catch_signals()?;
     INTERRUPTS.store(0, Ordering::SeqCst);
@@ -550,6 +613,14 @@ fn train_loop(
                 r.device_memory as f64 / (1u64 << 20) as f64,
                 r.seconds
             );
+            progress.line(&msg);
+        }
+        if let Some(h) =
+            held.filter(|h| info.iter.is_multiple_of(h.every) || info.iter == cfg.iters)
+        {
+            let (line, msg) = h.score(trainer, info.iter)?;
+            writeln!(stats, "{line}")
+                .with_context(|| format!("cannot write {}", stats_path.display()))?;
             progress.line(&msg);
         }
         if sched.checkpoints.contains(&info.iter) {
@@ -831,6 +902,7 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
         set: vec![format!("grid_level={}", a.level)],
         resume: false,
         source: Default::default(),
+        eval_every: None,
     };
     if !a.voxelize {
         resolve_config(&train_args)?;

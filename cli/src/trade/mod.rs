@@ -80,6 +80,7 @@ impl TradeArgs {
                 set,
                 resume: false,
                 source: Default::default(),
+                eval_every: None,
             },
         )
     }

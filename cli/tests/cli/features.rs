@@ -260,3 +260,52 @@ fn resume_with_more_iterations_extends_a_finished_run() {
     let last = logged(&run).last().unwrap().clone();
     assert_eq!(last["iter"], 300);
 }
+
+/// `train --eval-every N` scores the held-out split during training: `{"eval": …}`
+/// lines in stats.jsonl every N iterations and at the end, a line on the progress, and a
+/// held-out series in training.png.
+#[test]
+fn eval_every_logs_held_out_quality() {
+    let dir = tmp("eval-every");
+    let data = small_data(dir.path(), "data", 10);
+    let run = dir.path().join("run");
+    let (ok, _, err) = svraster(&[
+        "train",
+        data.to_str().unwrap(),
+        "--out",
+        run.to_str().unwrap(),
+        "--preset",
+        "quick",
+        "--iters",
+        "50",
+        "--set",
+        "grid_level=3",
+        "--eval-every",
+        "20",
+    ]);
+    assert!(ok, "{err}");
+    let evals: Vec<serde_json::Value> = stats_lines(&run)
+        .into_iter()
+        .filter_map(|l| l.get("eval").cloned())
+        .collect();
+    let iters: Vec<u64> = evals.iter().map(|e| e["iter"].as_u64().unwrap()).collect();
+    assert_eq!(iters, [20, 40, 50], "{evals:?}");
+    for e in &evals {
+        assert_eq!(e["split"], "test");
+        assert!(
+            e["psnr"].as_f64().unwrap() > 5.0 && e["ssim"].as_f64().is_some(),
+            "{e}"
+        );
+    }
+    assert!(err.contains("eval @40: 1 views of `test`: PSNR"), "{err}");
+    assert!(run.join("training.png").is_file());
+    // The last evaluation is the model's own held-out score.
+    let (ok, out, err) = svraster(&["eval", run.to_str().unwrap(), "--json"]);
+    assert!(ok, "{err}");
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let last = evals.last().unwrap()["psnr"].as_f64().unwrap();
+    assert!(
+        (v["psnr"].as_f64().unwrap() - last).abs() < 1e-6,
+        "{v} vs {last}"
+    );
+}
