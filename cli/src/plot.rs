@@ -6,6 +6,7 @@
 use std::path::Path;
 
 use anyhow::Context as _;
+use plotters::coord::combinators::BindKeyPoints;
 use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters_backend::{
@@ -237,6 +238,50 @@ fn range(v: impl Iterator<Item = f64>, log: bool) -> Option<(f64, f64)> {
     })
 }
 
+/// Labelled ticks of a log axis over `lo..hi`: m·10^k inside it for m in 1, 2, 5 — all
+/// of 1..9 when that gives fewer than 3 (a short run's loss or voxel count spans less
+/// than a decade: plotters' own log ticks labelled one value or none), round values
+/// evenly spaced within a fraction of a decade, and powers of ten (at most 8) over many.
+fn log_ticks(lo: f64, hi: f64) -> Vec<f64> {
+    let within = |ms: &[f64]| -> Vec<f64> {
+        if !(lo > 0.0 && hi >= lo && hi.is_finite()) {
+            return Vec::new();
+        }
+        let (k0, k1) = (lo.log10().floor() as i32, hi.log10().ceil() as i32);
+        (k0..=k1)
+            .flat_map(|k| ms.iter().map(move |m| m * 10f64.powi(k)))
+            .filter(|v| *v >= lo * (1.0 - 1e-12) && *v <= hi * (1.0 + 1e-12))
+            .collect()
+    };
+    let t = within(&[1.0, 2.0, 5.0]);
+    if t.len() > 8 {
+        // Powers of ten, every other (or third, …) one over many decades.
+        let t = within(&[1.0]);
+        let every = t.len().div_ceil(8).max(1);
+        return t.into_iter().step_by(every).collect();
+    }
+    if t.len() >= 3 {
+        return t;
+    }
+    let t = within(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0]);
+    if t.len() >= 3 || hi <= lo || hi.is_nan() {
+        return t;
+    }
+    // Less than a fraction of a decade: evenly spaced round values (3 to 8 of them).
+    let raw = (hi - lo) / 4.0;
+    let mag = 10f64.powf(raw.log10().floor());
+    let step = [1.0, 2.0, 5.0, 10.0]
+        .iter()
+        .map(|m| m * mag)
+        .find(|st| (hi - lo) / st <= 8.0)
+        .unwrap_or(10.0 * mag);
+    let first = (lo / step).ceil() as i64;
+    (first..)
+        .map(|i| i as f64 * step)
+        .take_while(|v| *v <= hi)
+        .collect()
+}
+
 /// Decimals that tell apart the ~6 ticks of a linear axis over `lo..hi`.
 fn axis_decimals(lo: f64, hi: f64) -> usize {
     let step = (hi - lo) / 6.0;
@@ -331,16 +376,20 @@ where
             }
         }};
     }
+    let (xk, yk) = (log_ticks(x0, x1), log_ticks(y0, y1));
     match (c.x_log, c.y_log) {
         (false, false) => body!(b.build_cartesian_2d(x0..x1, y0..y1).map_err(draw_err)?),
         (true, false) => body!(b
-            .build_cartesian_2d((x0..x1).log_scale(), y0..y1)
+            .build_cartesian_2d((x0..x1).log_scale().with_key_points(xk), y0..y1)
             .map_err(draw_err)?),
         (false, true) => body!(b
-            .build_cartesian_2d(x0..x1, (y0..y1).log_scale())
+            .build_cartesian_2d(x0..x1, (y0..y1).log_scale().with_key_points(yk))
             .map_err(draw_err)?),
         (true, true) => body!(b
-            .build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())
+            .build_cartesian_2d(
+                (x0..x1).log_scale().with_key_points(xk),
+                (y0..y1).log_scale().with_key_points(yk)
+            )
             .map_err(draw_err)?),
     }
     Ok(())
@@ -612,6 +661,28 @@ mod tests {
         );
         assert_eq!(tick_label(-0.00001, Some(axis_decimals(-1.0, 1.0))), "0");
         assert_eq!(tick_label(20000.0, Some(0)), "20k");
+    }
+
+    #[test]
+    fn log_axes_get_three_to_eight_labelled_ticks_at_any_span() {
+        use super::log_ticks;
+        // A short run's voxels and loss, a long run's loss, a near-flat count, a
+        // flat one (range pads it by 0.3 decades), eight decades.
+        for (lo, hi) in [
+            (2519.0, 32768.0),
+            (0.0025, 0.15),
+            (0.0008, 0.2),
+            (2900.0, 3100.0),
+            (511.9, 512.1),
+            (256.0, 1024.0),
+            (1.0, 1e8),
+        ] {
+            let (lo, hi) = super::range([lo, hi].into_iter(), true).unwrap();
+            let t = log_ticks(lo, hi);
+            assert!((3..=8).contains(&t.len()), "{lo}..{hi}: {t:?}");
+            assert!(t.iter().all(|v| *v >= lo && *v <= hi), "{lo}..{hi}: {t:?}");
+            assert!(t.windows(2).all(|w| w[0] < w[1]), "{t:?}");
+        }
     }
 
     #[test]
