@@ -111,6 +111,26 @@ fn has_checkpoint(run: &Path) -> bool {
         .any(|f| run.join(f).exists())
 }
 
+/// Identity of a training split, to recognise a moved dataset on `--resume`: FNV-1a of
+/// every frame's name and camera (size, intrinsics and pose as f32), in order.
+fn split_fingerprint(ds: &data::Dataset) -> String {
+    let mut bytes = Vec::new();
+    for f in &ds.frames {
+        bytes.extend_from_slice(f.name.as_bytes());
+        bytes.push(0);
+        let c = &f.camera;
+        bytes.extend_from_slice(&c.width.to_le_bytes());
+        bytes.extend_from_slice(&c.height.to_le_bytes());
+        let vals = [c.fx, c.fy, c.cx, c.cy]
+            .into_iter()
+            .chain(c.c2w.iter().flatten().copied());
+        for x in vals {
+            bytes.extend_from_slice(&(x as f32).to_le_bytes());
+        }
+    }
+    format!("{:016x}", super::run_dir::fnv64(&bytes))
+}
+
 /// The path as written in config.json (absolute where it resolves).
 fn canonical(p: &Path) -> PathBuf {
     std::fs::canonicalize(p).unwrap_or_else(|_| p.to_path_buf())
@@ -122,6 +142,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     let cfg_path = run.join("config.json");
     let mut _lock = None;
     let mut extended = false;
+    let mut moved: Option<(PathBuf, Option<String>)> = None;
     let (mut cfg, init, opt_state, start_iter, preset, downscale, source) = if a.resume {
         if a.seed.is_some() || !a.set.is_empty() {
             bail!("--resume continues a run with its own config.json: drop --seed/--set (or start a new --out)");
@@ -156,15 +177,12 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             extended = true;
         }
         // The same run: the data, downscale and preset that shaped it.
+        // Another path is the same data when its training views are the run's (a moved
+        // dataset): decided once they are loaded.
         let run_data = v["data"].as_str().map(PathBuf::from);
         if let Some(d) = &run_data {
             if canonical(d) != canonical(&a.data) {
-                bail!(
-                    "--resume: the run in {} trains on {}, not {}; pass that DATA (or start a new --out)",
-                    run.display(),
-                    d.display(),
-                    a.data.display()
-                );
+                moved = Some((d.clone(), v["train_fingerprint"].as_str().map(String::from)));
             }
         }
         let run_downscale = v["downscale"].as_f64().unwrap_or(1.0);
@@ -261,6 +279,41 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     };
     eprintln!("loading the train split of {} …", a.data.display());
     let train = data::load(&a.data, "train", downscale, cfg.background, &source)?;
+    let fingerprint = split_fingerprint(&train);
+    if let Some((old, recorded)) = moved {
+        match recorded {
+            Some(fp) if fp == fingerprint => {
+                eprintln!(
+                    "the run's data moved: {} → {} holds the same {} training views; the run \
+                     continues there",
+                    old.display(),
+                    a.data.display(),
+                    train.frames.len()
+                );
+                let text = std::fs::read_to_string(&cfg_path)
+                    .with_context(|| format!("cannot read {}", cfg_path.display()))?;
+                let mut v: serde_json::Value = serde_json::from_str(&text)
+                    .with_context(|| format!("{} is not valid JSON", cfg_path.display()))?;
+                v["data"] = serde_json::json!(canonical(&a.data));
+                atomic_write(&cfg_path, serde_json::to_string_pretty(&v)?.as_bytes())?;
+            }
+            Some(_) => bail!(
+                "--resume: the run in {} trains on {}, not {}: its training views (names, \
+                 cameras) differ from the run's; pass the run's DATA (or start a new --out)",
+                run.display(),
+                old.display(),
+                a.data.display()
+            ),
+            None => bail!(
+                "--resume: the run in {} trains on {}, not {}; pass that DATA (or start a new \
+                 --out). This run predates the record that recognises a moved dataset: move it \
+                 back, or link the old path to it",
+                run.display(),
+                old.display(),
+                a.data.display()
+            ),
+        }
+    }
     if _lock.is_none() {
         // A new run: everything is validated; now the directory, locked before anything
         // is written into it (and checked again under the lock).
@@ -332,6 +385,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             "source": source,
             "image_size": [train.width, train.height],
             "train_views": train.frames.len(),
+            "train_fingerprint": fingerprint,
             "voxels": trainer.voxels(),
             "voxel_budget": trainer.budget(),
             "device": ctx.info().name,

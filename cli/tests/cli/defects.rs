@@ -547,3 +547,46 @@ fn progress_shows_current_values_and_elapsed_time_continues() {
         at(260)
     );
 }
+
+/// Defect 4: a dataset moved after training started is recognised on `--resume` by its
+/// training views (names and cameras) and the run continues there, its config.json
+/// updated; other data is still refused.
+#[test]
+fn resume_follows_a_moved_dataset() {
+    let dir = tmp("moved-data");
+    let data = small_data(dir.path(), "data", 11);
+    let other = small_data(dir.path(), "other", 12);
+    let run = dir.path().join("run");
+    let rs = run.to_str().unwrap();
+    let (ok, _, err) = svraster(&[
+        "train",
+        data.to_str().unwrap(),
+        "--out",
+        rs,
+        "--preset",
+        "quick",
+        "--iters",
+        "20",
+        "--set",
+        "grid_level=3",
+    ]);
+    assert!(ok, "{err}");
+    set_run_iters(&run, 30);
+    let moved = dir.path().join("moved");
+    std::fs::rename(&data, &moved).unwrap();
+    let (ok, _, err) = svraster(&["train", other.to_str().unwrap(), "--out", rs, "--resume"]);
+    assert!(
+        !ok && err.contains("trains on") && err.contains("differ"),
+        "{err}"
+    );
+    let (ok, _, err) = svraster(&["train", moved.to_str().unwrap(), "--out", rs, "--resume"]);
+    assert!(ok && err.contains("the run's data moved"), "{err}");
+    assert_eq!(checkpoint_iter(&run), 30);
+    let cfg: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap();
+    let recorded = std::path::PathBuf::from(cfg["data"].as_str().unwrap());
+    assert_eq!(recorded, moved.canonicalize().unwrap());
+    // Later commands of the run find it there.
+    let (ok, _, err) = svraster(&["eval", rs]);
+    assert!(ok, "{err}");
+}
