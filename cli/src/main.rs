@@ -171,6 +171,10 @@ enum Command {
         /// training.png.
         #[arg(long)]
         eval_every: Option<u32>,
+        /// A config.json (another run's, or a bare configuration object) as the base of
+        /// this run instead of a preset; --iters, --seed and --set apply on top.
+        #[arg(long)]
+        config: Option<PathBuf>,
         #[command(flatten)]
         source: DataArgs,
     },
@@ -474,6 +478,7 @@ pub fn run() -> anyhow::Result<()> {
             resume,
             json,
             eval_every,
+            config,
             source,
         } => {
             if let Some(n) = max_voxels {
@@ -502,6 +507,7 @@ pub fn run() -> anyhow::Result<()> {
                     resume,
                     source: source.source(),
                     eval_every,
+                    config,
                 },
             )?;
             if json {

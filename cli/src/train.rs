@@ -35,6 +35,8 @@ pub struct TrainArgs {
     pub source: data::SourceOptions,
     /// Evaluate the held-out split every N iterations (and at the end) into stats.jsonl.
     pub eval_every: Option<u32>,
+    /// A config.json (or configuration object) as the base of a new run.
+    pub config: Option<PathBuf>,
 }
 
 /// The preset of a new run: `--preset`, else the one the data's format calls for
@@ -63,9 +65,48 @@ pub fn format_preset(format: data::Format) -> &'static str {
     }
 }
 
+/// The base configuration `--config FILE` names: a run's config.json (its `config`
+/// and `preset`) or a bare configuration object; the schedule length of an extended run
+/// is not carried over.
+fn config_file(path: &Path) -> anyhow::Result<(TrainConfig, Option<String>)> {
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read --config {}", path.display()))?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("--config {} is not valid JSON", path.display()))?;
+    let (obj, preset) = match v.get("config") {
+        Some(c) => (c.clone(), v["preset"].as_str().map(String::from)),
+        None => (v, None),
+    };
+    let mut cfg: TrainConfig = serde_json::from_value(obj).with_context(|| {
+        format!(
+            "--config {}: not a training configuration (a run's config.json, or its \
+             \"config\" object)",
+            path.display()
+        )
+    })?;
+    cfg.schedule_iters = None;
+    cfg.validate()
+        .with_context(|| format!("--config {}", path.display()))?;
+    Ok((cfg, preset))
+}
+
+/// The preset a new run records: the base config's, else [`default_preset`].
+fn run_preset(a: &TrainArgs) -> anyhow::Result<String> {
+    Ok(match &a.config {
+        Some(p) => config_file(p)?.1.unwrap_or_else(|| "config".into()),
+        None => default_preset(a),
+    })
+}
+
 /// Resolves the configuration of a new run.
 pub fn resolve_config(a: &TrainArgs) -> anyhow::Result<TrainConfig> {
-    let mut cfg = TrainConfig::preset(&default_preset(a))?;
+    if a.config.is_some() && a.preset.is_some() {
+        bail!("--config is the base of the run instead of a preset: drop --preset (or --config)");
+    }
+    let mut cfg = match &a.config {
+        Some(p) => config_file(p)?.0,
+        None => TrainConfig::preset(&default_preset(a))?,
+    };
     if let Some(n) = a.iters {
         cfg.iters = n;
     }
@@ -144,8 +185,8 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     let mut extended = false;
     let mut moved: Option<(PathBuf, Option<String>)> = None;
     let (mut cfg, init, opt_state, start_iter, preset, downscale, source) = if a.resume {
-        if a.seed.is_some() || !a.set.is_empty() {
-            bail!("--resume continues a run with its own config.json: drop --seed/--set (or start a new --out)");
+        if a.seed.is_some() || !a.set.is_empty() || a.config.is_some() {
+            bail!("--resume continues a run with its own config.json: drop --seed/--set/--config (or start a new --out)");
         }
         if !cfg_path.is_file() {
             bail!(
@@ -272,7 +313,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             None,
             None,
             0,
-            default_preset(a),
+            run_preset(a)?,
             downscale,
             a.source.clone(),
         )
@@ -957,6 +998,7 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
         resume: false,
         source: Default::default(),
         eval_every: None,
+        config: None,
     };
     if !a.voxelize {
         resolve_config(&train_args)?;

@@ -81,6 +81,7 @@ impl TradeArgs {
                 resume: false,
                 source: Default::default(),
                 eval_every: None,
+                config: None,
             },
         )
     }

@@ -309,3 +309,109 @@ fn eval_every_logs_held_out_quality() {
         "{v} vs {last}"
     );
 }
+
+/// `train --config FILE` starts a run from another run's config.json (or a bare
+/// configuration object): its settings are the base, --iters/--seed/--set apply on top;
+/// with --preset or --resume, or a file that is not a configuration, it is refused.
+#[test]
+fn config_file_is_the_base_of_a_new_run() {
+    let dir = tmp("config-file");
+    let data = small_data(dir.path(), "data", 13);
+    let ds = data.to_str().unwrap();
+    let a = dir.path().join("a");
+    let (ok, _, err) = svraster(&[
+        "train",
+        ds,
+        "--out",
+        a.to_str().unwrap(),
+        "--preset",
+        "quick",
+        "--iters",
+        "20",
+        "--set",
+        "grid_level=3",
+        "--set",
+        "lambda_ssim=0.1",
+    ]);
+    assert!(ok, "{err}");
+    let base = a.join("config.json");
+    let b = dir.path().join("b");
+    let (ok, _, err) = svraster(&[
+        "train",
+        ds,
+        "--out",
+        b.to_str().unwrap(),
+        "--config",
+        base.to_str().unwrap(),
+        "--iters",
+        "10",
+        "--set",
+        "sh_degree=1",
+    ]);
+    assert!(ok, "{err}");
+    let cfg = |run: &std::path::Path| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap()
+    };
+    let (ca, cb) = (cfg(&a), cfg(&b));
+    assert_eq!(cb["preset"], ca["preset"]);
+    assert_eq!(cb["config"]["grid_level"], 3);
+    assert_eq!(cb["config"]["lambda_ssim"], ca["config"]["lambda_ssim"]);
+    assert_eq!(
+        (
+            cb["config"]["iters"].as_u64(),
+            cb["config"]["sh_degree"].as_u64()
+        ),
+        (Some(10), Some(1))
+    );
+    // A bare configuration object works too.
+    let bare = dir.path().join("bare.json");
+    std::fs::write(&bare, serde_json::to_string(&ca["config"]).unwrap()).unwrap();
+    let c = dir.path().join("c");
+    let (ok, _, err) = svraster(&[
+        "train",
+        ds,
+        "--out",
+        c.to_str().unwrap(),
+        "--config",
+        bare.to_str().unwrap(),
+        "--iters",
+        "5",
+    ]);
+    assert!(ok, "{err}");
+    assert_eq!(
+        cfg(&c)["config"]["lambda_ssim"],
+        ca["config"]["lambda_ssim"]
+    );
+    let d = dir.path().join("d");
+    for (extra, needle) in [
+        (vec!["--preset", "quick"], "drop --preset"),
+        (vec!["--resume"], "drop --seed/--set/--config"),
+    ] {
+        let mut args = vec![
+            "train",
+            ds,
+            "--out",
+            d.to_str().unwrap(),
+            "--config",
+            base.to_str().unwrap(),
+        ];
+        args.extend(extra);
+        let (ok, _, err) = svraster(&args);
+        assert!(!ok && err.contains(needle), "{err}");
+    }
+    let junk = dir.path().join("junk.json");
+    std::fs::write(&junk, "{\"nope\": 1}").unwrap();
+    let (ok, _, err) = svraster(&[
+        "train",
+        ds,
+        "--out",
+        d.to_str().unwrap(),
+        "--config",
+        junk.to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && err.contains("junk.json") && err.contains("not a training configuration"),
+        "{err}"
+    );
+    assert!(!d.exists(), "a refused run made its directory");
+}
