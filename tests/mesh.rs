@@ -610,3 +610,51 @@ fn default_mesh_level_is_the_most_common_level() {
         "the 2×2×2 level-3 voxels in [-1, -0.5]³"
     );
 }
+
+/// Meshes are read from binary little-endian and ASCII PLY alike (other tools write
+/// either): the same positions and triangles, a quad fanned into two triangles, extra
+/// vertex properties skipped; a truncated ASCII body and a word for a number are errors
+/// naming the file.
+#[test]
+fn meshes_read_from_binary_and_ascii_ply_alike() {
+    use svraster::mesh::ply;
+    let dir = tempfile::tempdir().unwrap();
+    let m = ply::PlyMesh {
+        positions: vec![
+            [0.0, 0.0, 0.0],
+            [1.0, 0.0, 0.0],
+            [1.0, 1.0, 0.5],
+            [0.0, 1.0, -0.25],
+        ],
+        normals: vec![[0.0, 0.0, 1.0]; 4],
+        colors: vec![[10, 20, 30]; 4],
+        triangles: vec![[0, 1, 2], [0, 2, 3]],
+    };
+    let bin = dir.path().join("b.ply");
+    ply::write(&bin, &m).unwrap();
+    let ascii = dir.path().join("a.ply");
+    std::fs::write(
+        &ascii,
+        "ply\nformat ascii 1.0\ncomment by hand\nelement vertex 4\nproperty float x\n\
+         property float y\nproperty float z\nproperty uchar red\nelement face 1\n\
+         property list uchar int vertex_indices\nend_header\n\
+         0 0 0 7\n1 0 0 7\n1 1 0.5 7\n0 1 -0.25 7\n4 0 1 2 3\n",
+    )
+    .unwrap();
+    let (pb, tb) = ply::read(&bin).unwrap();
+    let (pa, ta) = ply::read(&ascii).unwrap();
+    assert_eq!(pb, m.positions);
+    assert_eq!((pa, ta.clone()), (pb, tb));
+    assert_eq!(ta, m.triangles);
+    for (body, needle) in [
+        ("0 0 0 7\n1 0 0 7\n", "ends inside"),
+        ("0 0 zero 7\n", "`zero` is not a number"),
+    ] {
+        let bad = dir.path().join("bad.ply");
+        let text = std::fs::read_to_string(&ascii).unwrap();
+        let head = &text[..text.find("end_header\n").unwrap() + 11];
+        std::fs::write(&bad, format!("{head}{body}")).unwrap();
+        let e = ply::read(&bad).unwrap_err().to_string();
+        assert!(e.contains("bad.ply") && e.contains(needle), "{e}");
+    }
+}

@@ -325,7 +325,8 @@ enum Command {
         /// when MODEL is a run directory).
         #[arg(long)]
         data: Option<PathBuf>,
-        /// Output PLY file (written atomically).
+        /// Output mesh, written atomically: binary PLY, or glTF 2.0 binary when it ends in
+        /// .glb (vertex colours as COLOR_0; Blender, three.js, game engines).
         #[arg(long)]
         out: PathBuf,
         /// Split whose views are fused.

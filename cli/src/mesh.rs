@@ -148,7 +148,11 @@ pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot create the directory of {}", a.out.display()))?;
     }
-    ply::write(&a.out, &out)?;
+    if is_glb(&a.out) {
+        mesh::glb::write(&a.out, &out)?;
+    } else {
+        ply::write(&a.out, &out)?;
+    }
     let n = ds.frames.len();
     for k in 0..a.preview.min(n) {
         let f = &ds.frames[k * n / a.preview.min(n)];
@@ -210,6 +214,13 @@ pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
         r.mc_seconds
     );
     Ok(())
+}
+
+/// Whether `out` names a glTF binary (`.glb`, any case); anything else is written as PLY.
+fn is_glb(out: &std::path::Path) -> bool {
+    out.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("glb"))
 }
 
 pub struct EvalMeshArgs {

@@ -6,11 +6,13 @@
 //! - [`mc`]: marching cubes over sparse voxels (watertight, vertices shared on grid-point
 //!   edges).
 //! - [`metrics`]: accuracy, completeness, Chamfer distance and F-score against points.
-//! - [`ply`]: binary PLY output.
+//! - [`ply`]: binary PLY output (and input, binary or ASCII).
+//! - [`glb`]: glTF 2.0 binary output.
 //! - [`view`]: a CPU rasterizer for looking at meshes and measuring silhouettes.
 //! - [`tsdf`]: truncated signed distance fusion of rendered depth maps on the GPU.
 
 pub mod extract;
+pub mod glb;
 pub mod mc;
 pub mod metrics;
 pub mod ply;

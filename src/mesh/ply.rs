@@ -82,9 +82,10 @@ pub fn write(path: &Path, m: &PlyMesh) -> Result<()> {
 /// Vertex positions and triangles.
 pub type PositionsAndTriangles = (Vec<[f64; 3]>, Vec<[u32; 3]>);
 
-/// Reads a binary little-endian triangle mesh: the `x, y, z` of each vertex (any scalar
-/// types; other properties skipped) and the faces (`list` of any integer count and index
-/// types; polygons fanned into triangles). The form [`write()`] and most mesh tools write.
+/// Reads a triangle mesh, binary little-endian (the form [`write()`] and most mesh tools
+/// write) or ASCII: the `x, y, z` of each vertex (any scalar types; other properties
+/// skipped) and the faces (`list` of any integer count and index types; polygons fanned
+/// into triangles).
 pub fn read(path: &Path) -> Result<PositionsAndTriangles> {
     let bytes = std::fs::read(path).map_err(|error| Error::Io {
         path: path.display().to_string(),
@@ -96,13 +97,15 @@ pub fn read(path: &Path) -> Result<PositionsAndTriangles> {
     // (name, count, properties: (name, type, list count type))
     type Prop = (String, String, Option<String>);
     let mut elements: Vec<(String, usize, Vec<Prop>)> = Vec::new();
+    let mut ascii = false;
     for l in lines {
         let w: Vec<&str> = l.split_whitespace().collect();
         match w.as_slice() {
+            ["format", f, ..] if *f == "ascii" => ascii = true,
             ["format", f, ..] if *f != "binary_little_endian" => {
                 return Err(bad(format!(
-                    "format `{f}`: only binary_little_endian meshes are read (convert with \
-                     MeshLab, trimesh or Open3D)"
+                    "format `{f}`: binary_little_endian and ascii meshes are read (convert \
+                     with MeshLab, trimesh or Open3D)"
                 )))
             }
             ["element", name, n] => elements.push((
@@ -127,24 +130,40 @@ pub fn read(path: &Path) -> Result<PositionsAndTriangles> {
     let size = |t: &str| -> Result<usize> {
         crate::data::ply::type_size(t).ok_or_else(|| bad(format!("unknown property type `{t}`")))
     };
-    let value = crate::data::ply::le_value;
-    let bytes = body;
-    let mut pos = 0;
     let short = || bad("the file ends inside its data (truncated?)".into());
+    // The next value of PLY type `t`: its bytes (binary), or the next token (ASCII).
+    let mut tokens = if ascii {
+        Some(
+            std::str::from_utf8(body)
+                .map_err(|_| bad("the ASCII data is not text".into()))?
+                .split_ascii_whitespace(),
+        )
+    } else {
+        None
+    };
+    let mut pos = 0;
+    let mut next = |t: &str| -> Result<f64> {
+        let s = size(t)?;
+        if let Some(tok) = tokens.as_mut() {
+            let w = tok.next().ok_or_else(short)?;
+            return w
+                .parse::<f64>()
+                .map_err(|_| bad(format!("`{w}` is not a number")));
+        }
+        let v = crate::data::ply::le_value(t, body.get(pos..pos + s).ok_or_else(short)?);
+        pos += s;
+        Ok(v)
+    };
     let (mut xyz, mut tris) = (Vec::new(), Vec::new());
     for (name, count, props) in &elements {
         for _ in 0..*count {
             let mut p = [0.0f64; 3];
             for (pname, t, list) in props {
                 if let Some(ct) = list {
-                    let cs = size(ct)?;
-                    let n = value(ct, bytes.get(pos..pos + cs).ok_or_else(short)?) as usize;
-                    pos += cs;
-                    let is = size(t)?;
+                    let n = next(ct)? as usize;
                     let mut idx = Vec::with_capacity(n);
                     for _ in 0..n {
-                        idx.push(value(t, bytes.get(pos..pos + is).ok_or_else(short)?) as u32);
-                        pos += is;
+                        idx.push(next(t)? as u32);
                     }
                     if name == "face" {
                         for k in 1..n.saturating_sub(1) {
@@ -152,9 +171,7 @@ pub fn read(path: &Path) -> Result<PositionsAndTriangles> {
                         }
                     }
                 } else {
-                    let s = size(t)?;
-                    let v = value(t, bytes.get(pos..pos + s).ok_or_else(short)?);
-                    pos += s;
+                    let v = next(t)?;
                     if name == "vertex" {
                         match pname.as_str() {
                             "x" => p[0] = v,

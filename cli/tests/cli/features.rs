@@ -513,3 +513,65 @@ fn splat_export_has_the_3dgs_layout() {
         );
     }
 }
+
+/// `mesh --out X.glb` writes glTF 2.0 binary that the `gltf` crate reads back: one
+/// triangle primitive with the PLY's positions, normals, vertex colours and triangles.
+#[test]
+fn mesh_as_gltf_binary_reads_back() {
+    let dir = tmp("glb");
+    let demo = dir.path().join("demo");
+    let (ok, _, err) = svraster(&[
+        "demo",
+        "--out",
+        demo.to_str().unwrap(),
+        "--size",
+        "32",
+        "--voxelize",
+        "--level",
+        "5",
+    ]);
+    assert!(ok, "{err}");
+    let (run, data) = (demo.join("run"), demo.join("data"));
+    let mesh = |out: &std::path::Path| {
+        let (ok, _, err) = svraster(&[
+            "mesh",
+            run.to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--vertex-colors",
+        ]);
+        assert!(ok, "{err}");
+    };
+    let (ply, glb) = (dir.path().join("m.ply"), dir.path().join("m.glb"));
+    mesh(&ply);
+    mesh(&glb);
+    let (positions, triangles) = svraster::mesh::ply::read(&ply).unwrap();
+    let bytes = std::fs::read(&glb).unwrap();
+    let doc = gltf::Gltf::from_slice(&bytes).unwrap();
+    let blob = doc.blob.clone().expect("a BIN chunk");
+    let meshes: Vec<_> = doc.meshes().collect();
+    assert_eq!(meshes.len(), 1);
+    let prims: Vec<_> = meshes[0].primitives().collect();
+    assert_eq!(prims.len(), 1);
+    assert_eq!(prims[0].mode(), gltf::mesh::Mode::Triangles);
+    let r = prims[0].reader(|_| Some(&blob[..]));
+    let pos: Vec<[f32; 3]> = r.read_positions().unwrap().collect();
+    assert_eq!(pos.len(), positions.len());
+    for (a, b) in pos.iter().zip(&positions) {
+        for k in 0..3 {
+            assert!((f64::from(a[k]) - b[k]).abs() <= 1e-6 * b[k].abs().max(1.0));
+        }
+    }
+    let idx: Vec<u32> = r.read_indices().unwrap().into_u32().collect();
+    let tris: Vec<[u32; 3]> = idx.chunks(3).map(|c| [c[0], c[1], c[2]]).collect();
+    assert_eq!(tris, triangles);
+    assert_eq!(r.read_normals().unwrap().count(), pos.len());
+    let colors: Vec<[u8; 4]> = r.read_colors(0).unwrap().into_rgba_u8().collect();
+    assert_eq!(colors.len(), pos.len());
+    assert!(
+        colors.iter().any(|c| c[..3] != [0, 0, 0]),
+        "vertex colours carried"
+    );
+}
