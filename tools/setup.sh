@@ -11,13 +11,15 @@
 #  - vulkan-tools: vulkaninfo, handy for diagnosing a driver
 #  - python3-numpy: tools/ply_read.py, the independent PLY reader the mesh tests check
 #    our PLY output with
+#  - ffmpeg: `render --path … --out X.mp4` encodes with it (and ffprobe reads the video
+#    back in cli/tests/cli/features.rs)
 #  - xvfb xauth and the X11 client libraries winit opens at run time (libx11-6 libx11-xcb1
 #    libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0): examples/viewer/ runs under a
 #    virtual X server in tests/viewer.rs
 set -euo pipefail
 MESA=${MESA:-backports}
 PKGS=(mesa-vulkan-drivers libvulkan1 libvulkan-dev libshaderc-dev glslang-dev spirv-tools
-      vulkan-validationlayers vulkan-tools g++ pkg-config python3 python3-numpy
+      vulkan-validationlayers vulkan-tools g++ pkg-config python3 python3-numpy ffmpeg
       xvfb xauth libx11-6 libx11-xcb1 libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0)
 SUDO=""
 [ "$(id -u)" -ne 0 ] && SUDO="sudo"

@@ -8,6 +8,7 @@ mod export;
 mod field;
 mod info;
 mod mesh;
+mod paths;
 mod plot;
 mod progress;
 mod render;
@@ -266,6 +267,25 @@ enum Command {
         /// scores) instead of the line.
         #[arg(long)]
         json: bool,
+        /// Render a camera path instead of a split: `orbit` (around what the training
+        /// cameras look at, at their mean distance and height), `train` (a smooth
+        /// fly-through of the training cameras in order) or a nerfstudio
+        /// camera_path.json (camera_to_world in the dataset's world, OpenGL axes; fov
+        /// vertical). --out DIR writes frame_NNNNN.png; --out X.mp4 also encodes H.264
+        /// with the system's ffmpeg (frames kept in X.mp4.frames/).
+        #[arg(long)]
+        path: Option<String>,
+        /// Frames of an orbit or fly-through.
+        #[arg(long, default_value_t = 120)]
+        frames: usize,
+        /// Image size of the path's frames, WxH (default: the training images', or the
+        /// camera_path.json's render_width × render_height).
+        #[arg(long, value_parser = parse_size)]
+        size: Option<(u32, u32)>,
+        /// Horizontal field of view of the path's frames, degrees (default: the first
+        /// training camera's).
+        #[arg(long)]
+        fov: Option<f64>,
         /// (default: the run's own when MODEL is a run directory)
         #[command(flatten)]
         source: DataArgs,
@@ -628,6 +648,10 @@ pub fn run() -> anyhow::Result<()> {
             mask,
             by_order,
             json,
+            path,
+            frames,
+            size,
+            fov,
             source,
         } => {
             let data = data_or_run(data, &model)?;
@@ -650,6 +674,10 @@ pub fn run() -> anyhow::Result<()> {
                     mask,
                     by_order,
                     json,
+                    path,
+                    frames,
+                    size,
+                    fov,
                 },
             )?
         }
@@ -726,6 +754,19 @@ fn data_or_run(data: Option<PathBuf>, model: &std::path::Path) -> anyhow::Result
             model.display()
         ),
     }
+}
+
+/// `--size WxH`.
+fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("`{s}`: expected WxH, e.g. 1280x720"))?;
+    let p = |v: &str| {
+        v.trim()
+            .parse::<u32>()
+            .map_err(|_| format!("`{s}`: expected WxH, e.g. 1280x720"))
+    };
+    Ok((p(w)?, p(h)?))
 }
 
 fn run_config(model: &std::path::Path) -> Option<serde_json::Value> {

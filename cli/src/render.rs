@@ -195,6 +195,15 @@ pub struct RenderArgs {
     pub by_order: bool,
     /// Print a JSON summary instead of the line.
     pub json: bool,
+    /// A camera path (`orbit`, `train` or a camera_path.json) instead of a split.
+    pub path: Option<String>,
+    /// Frames of an orbit or fly-through.
+    pub frames: usize,
+    /// Image size of a path's frames (None: the training images', or the JSON's).
+    pub size: Option<(u32, u32)>,
+    /// Horizontal field of view of a path's frames, degrees (None: the first training
+    /// camera's).
+    pub fov: Option<f64>,
 }
 
 /// Renders every frame of a split; returns (mean PSNR against the photos, ms per frame,
@@ -257,6 +266,87 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64, 
     Ok((total_psnr / n, ms / n, ds.frames.len()))
 }
 
+/// `render --path`: the frames of a camera path as `frame_NNNNN.png` in a folder, or
+/// encoded to an MP4 (the PNGs kept beside it in `OUT.frames/`).
+fn render_path(ctx: &Context, a: &RenderArgs, kind: &str) -> anyhow::Result<()> {
+    use super::paths;
+    let scene = load_model(&a.model)?;
+    let mut ds = data::load(&a.data, "train", a.downscale, scene.background, &a.source)?;
+    ds.to_model(&scene.world);
+    let size = a
+        .size
+        .or_else(|| paths::nerfstudio_size(Path::new(kind)))
+        .unwrap_or((ds.width, ds.height));
+    if size.0 == 0
+        || size.1 == 0
+        || size.0 > svraster::raster::MAX_IMAGE_EDGE
+        || size.1 > svraster::raster::MAX_IMAGE_EDGE
+    {
+        bail!(
+            "--size {}x{}: each side must be 1 to {}",
+            size.0,
+            size.1,
+            svraster::raster::MAX_IMAGE_EDGE
+        );
+    }
+    let cams = paths::path_cameras(
+        kind,
+        &ds.cameras(),
+        a.frames,
+        size,
+        a.fov.map(f64::to_radians),
+        &scene.world,
+    )?;
+    refuse_output_in_dataset(&a.out, &a.data)?;
+    let (dir, mp4) = paths::frames_dir(&a.out);
+    std::fs::create_dir_all(&dir)
+        .with_context(|| format!("cannot create output directory {}", dir.display()))?;
+    let opts = RenderOptions {
+        samples: a.samples,
+        supersample: a.ss.unwrap_or(scene.supersample),
+    };
+    let gpu = SceneGpu::upload(ctx, &scene)?;
+    let mut r = Renderer::new(ctx)?;
+    let mut progress = super::progress::Progress::new("render path", cams.len() as u64);
+    let t = Instant::now();
+    r.render_each(&gpu, &cams, &opts, |i, img, _| -> anyhow::Result<()> {
+        image::save_rgb_png(
+            &dir.join(format!("frame_{i:05}.png")),
+            img.width,
+            img.height,
+            &img.rgb,
+        )?;
+        progress.update(i as u64 + 1, || format!("frame {i}"));
+        Ok(())
+    })?;
+    progress.finish();
+    let ms = 1e3 * t.elapsed().as_secs_f64() / cams.len() as f64;
+    if mp4 {
+        paths::encode_mp4(&dir, &a.out, 30)?;
+    }
+    let doc = serde_json::json!({
+        "path": kind, "frames": cams.len(), "width": size.0, "height": size.1,
+        "out": a.out, "frames_dir": dir, "mp4": mp4, "ms_per_frame": ms,
+    });
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&doc)?);
+    } else {
+        println!(
+            "rendered the {kind} path: {} frames of {}×{} ({ms:.0} ms each) to {}{}",
+            cams.len(),
+            size.0,
+            size.1,
+            a.out.display(),
+            if mp4 {
+                format!(" (H.264, 30 fps; frames in {})", dir.display())
+            } else {
+                String::new()
+            }
+        );
+    }
+    Ok(())
+}
+
 /// `path` made absolute through its longest existing ancestor (symlinks resolved), so
 /// that an output that does not exist yet can be compared with an input.
 pub fn resolved(path: &Path) -> PathBuf {
@@ -297,6 +387,12 @@ pub fn refuse_output_in_dataset(out: &Path, data: &Path) -> anyhow::Result<()> {
 }
 
 pub fn run_render(ctx: &Context, a: RenderArgs) -> anyhow::Result<()> {
+    if let Some(kind) = &a.path {
+        if a.field.is_some() || a.depth || a.normal || a.compare || a.truth.is_some() {
+            bail!("--path renders colour frames: leave out --field, --depth, --normal, --compare and --truth");
+        }
+        return render_path(ctx, &a, kind);
+    }
     if let Some(field) = &a.field {
         if a.by_order && a.truth.is_none() {
             bail!("--by-order pairs the --truth files with the views: pass --truth DIR");

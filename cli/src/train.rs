@@ -1118,6 +1118,10 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
             mask: false,
             by_order: false,
             json: false,
+            path: None,
+            frames: 0,
+            size: None,
+            fov: None,
         },
     )?;
     let how = if a.voxelize {

@@ -1,0 +1,270 @@
+//! Camera paths for `svraster render --path`: an orbit around what the training cameras
+//! look at, a smooth fly-through of the training cameras (SVRaster's), or nerfstudio's
+//! `camera_path.json`; frames written as PNGs and, for an `.mp4`, encoded by the
+//! system's ffmpeg (H.264). ffmpeg rather than an encoder crate: the maintained Rust
+//! H.264 encoders wrap C libraries (openh264) that would add a C build to every build
+//! for one optional output, while ffmpeg is one `apt-get install` where videos are
+//! wanted — and when it is missing the frames are kept and the message says so.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, Context as _};
+use glam::{DMat3, DQuat, DVec3};
+use svraster::data::Camera;
+use svraster::scene::WorldFrame;
+
+/// The cameras of path `kind` (`orbit`, `train` or a camera_path.json file) through the
+/// training cameras `train` (model frame), `frames` of them at `size` with horizontal
+/// field of view `fov_x` (radians; None: the first training camera's).
+pub fn path_cameras(
+    kind: &str,
+    train: &[Camera],
+    frames: usize,
+    size: (u32, u32),
+    fov_x: Option<f64>,
+    world: &WorldFrame,
+) -> anyhow::Result<Vec<Camera>> {
+    if train.len() < 2 {
+        bail!(
+            "a camera path needs at least 2 training cameras, the split has {}",
+            train.len()
+        );
+    }
+    let first = &train[0];
+    let fov = fov_x.unwrap_or(2.0 * (0.5 * first.width as f64 / first.fx).atan());
+    let (w, h) = size;
+    match kind {
+        "orbit" => {
+            if frames == 0 {
+                bail!("--frames must be at least 1");
+            }
+            let centre = look_centre(train);
+            let up = mean_up(train);
+            let pos: Vec<DVec3> = train.iter().map(|c| DVec3::from(c.origin())).collect();
+            let radius = pos.iter().map(|p| (*p - centre).length()).sum::<f64>() / pos.len() as f64;
+            // Mean height above the centre along `up`, and the first camera's azimuth.
+            let height = pos.iter().map(|p| (*p - centre).dot(up)).sum::<f64>() / pos.len() as f64;
+            let ring = (radius * radius - height * height).max(1e-12).sqrt();
+            let e1 = {
+                let d = pos[0] - centre;
+                let flat = d - up * d.dot(up);
+                if flat.length() > 1e-9 * radius {
+                    flat.normalize()
+                } else {
+                    up.any_orthonormal_vector()
+                }
+            };
+            let e2 = up.cross(e1);
+            Ok((0..frames)
+                .map(|i| {
+                    let a = std::f64::consts::TAU * i as f64 / frames as f64;
+                    let eye = centre + up * height + (e1 * a.cos() + e2 * a.sin()) * ring;
+                    Camera::look_at(eye.into(), centre.into(), up.into(), fov, w, h)
+                })
+                .collect())
+        }
+        "train" => {
+            if frames < 2 {
+                bail!("--frames must be at least 2 for the `train` path");
+            }
+            Ok(fly_through(train, frames, fov, w, h))
+        }
+        file => nerfstudio_path(Path::new(file), world, w, h),
+    }
+}
+
+/// The point closest to every training camera's optical axis (least squares): what
+/// they look at.
+fn look_centre(cams: &[Camera]) -> DVec3 {
+    let mut a = DMat3::ZERO;
+    let mut b = DVec3::ZERO;
+    for c in cams {
+        let o = DVec3::from(c.origin());
+        let d = DVec3::from(c.rotate([0.0, 0.0, 1.0])).normalize();
+        let m = DMat3::IDENTITY - DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+        a += m;
+        b += m * o;
+    }
+    if a.determinant().abs() < 1e-12 {
+        // Parallel axes (a forward-facing capture): a point ahead of the mean camera.
+        let n = cams.len() as f64;
+        let o: DVec3 = cams.iter().map(|c| DVec3::from(c.origin())).sum::<DVec3>() / n;
+        let d: DVec3 = cams
+            .iter()
+            .map(|c| DVec3::from(c.rotate([0.0, 0.0, 1.0])))
+            .sum::<DVec3>();
+        return o + d.normalize_or_zero();
+    }
+    a.inverse() * b
+}
+
+/// The training cameras' mean up direction (OpenCV: −y on screen).
+fn mean_up(cams: &[Camera]) -> DVec3 {
+    let s: DVec3 = cams
+        .iter()
+        .map(|c| -DVec3::from(c.rotate([0.0, 1.0, 0.0])))
+        .sum();
+    s.try_normalize().unwrap_or(DVec3::Z)
+}
+
+/// `frames` cameras along the training cameras in order: positions on a Catmull–Rom
+/// spline through them, orientations slerped, the field of view `fov`.
+fn fly_through(train: &[Camera], frames: usize, fov: f64, w: u32, h: u32) -> Vec<Camera> {
+    let pos: Vec<DVec3> = train.iter().map(|c| DVec3::from(c.origin())).collect();
+    let rot: Vec<DQuat> = train
+        .iter()
+        .map(|c| DQuat::from_mat3(&c.rotation()))
+        .collect();
+    let n = pos.len();
+    (0..frames)
+        .map(|i| {
+            let t = i as f64 / (frames - 1) as f64 * (n - 1) as f64;
+            let k = (t.floor() as usize).min(n - 2);
+            let u = t - k as f64;
+            let p = |j: isize| pos[j.clamp(0, n as isize - 1) as usize];
+            let (p0, p1, p2, p3) = (
+                p(k as isize - 1),
+                p(k as isize),
+                p(k as isize + 1),
+                p(k as isize + 2),
+            );
+            let eye = 0.5
+                * (2.0 * p1
+                    + (p2 - p0) * u
+                    + (2.0 * p0 - 5.0 * p1 + 4.0 * p2 - p3) * u * u
+                    + (3.0 * p1 - p0 - 3.0 * p2 + p3) * u * u * u);
+            let (q1, mut q2) = (rot[k], rot[k + 1]);
+            if q1.dot(q2) < 0.0 {
+                q2 = -q2;
+            }
+            let r = DMat3::from_quat(q1.slerp(q2, u));
+            let c2w =
+                std::array::from_fn(|row| [r.x_axis[row], r.y_axis[row], r.z_axis[row], eye[row]]);
+            let fx = 0.5 * w as f64 / (0.5 * fov).tan();
+            Camera {
+                width: w,
+                height: h,
+                fx,
+                fy: fx,
+                cx: 0.5 * w as f64,
+                cy: 0.5 * h as f64,
+                c2w,
+                near: train[0].near,
+            }
+        })
+        .collect()
+}
+
+/// The cameras of a nerfstudio `camera_path.json`: `camera_path[i].camera_to_world` (16
+/// numbers, row-major, OpenGL axes, the dataset's world coordinates) and `.fov`
+/// (vertical, degrees); `render_width`/`render_height` unless `--size` says otherwise.
+fn nerfstudio_path(path: &Path, world: &WorldFrame, w: u32, h: u32) -> anyhow::Result<Vec<Camera>> {
+    let text = std::fs::read_to_string(path).with_context(|| {
+        format!(
+            "--path {}: not orbit, train or a readable camera_path.json",
+            path.display()
+        )
+    })?;
+    let v: serde_json::Value = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not valid JSON", path.display()))?;
+    let frames = v["camera_path"]
+        .as_array()
+        .with_context(|| format!("{}: no `camera_path` array", path.display()))?;
+    let mut out = Vec::with_capacity(frames.len());
+    for (i, f) in frames.iter().enumerate() {
+        let bad = |what: &str| anyhow::anyhow!("{}: camera_path[{i}]: {what}", path.display());
+        let m: Vec<f64> = f["camera_to_world"]
+            .as_array()
+            .ok_or_else(|| bad("no `camera_to_world`"))?
+            .iter()
+            .map(|x| x.as_f64())
+            .collect::<Option<_>>()
+            .ok_or_else(|| bad("`camera_to_world` holds a non-number"))?;
+        if m.len() != 16 || m.iter().any(|x| !x.is_finite()) {
+            bail!(bad("`camera_to_world` is not 16 finite numbers"));
+        }
+        let fov_y = f["fov"]
+            .as_f64()
+            .ok_or_else(|| bad("no `fov` (vertical, degrees)"))?;
+        if !(fov_y > 0.0 && fov_y < 180.0) {
+            bail!(bad("`fov` is not in (0, 180) degrees"));
+        }
+        let gl: [[f64; 4]; 4] = std::array::from_fn(|r| std::array::from_fn(|c| m[4 * r + c]));
+        let fov_x = 2.0 * ((0.5 * fov_y.to_radians()).tan() * w as f64 / h as f64).atan();
+        let cam = Camera::from_opengl(gl, fov_x, w, h);
+        out.push(world.camera_to_model(&cam));
+    }
+    if out.is_empty() {
+        bail!("{}: `camera_path` is empty", path.display());
+    }
+    Ok(out)
+}
+
+/// The image size of a nerfstudio camera path (`render_width`, `render_height`).
+pub fn nerfstudio_size(path: &Path) -> Option<(u32, u32)> {
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()?;
+    Some((
+        u32::try_from(v["render_width"].as_u64()?).ok()?,
+        u32::try_from(v["render_height"].as_u64()?).ok()?,
+    ))
+}
+
+/// Encodes `dir/frame_%05d.png` into an H.264 MP4 at `out` with the system's ffmpeg.
+pub fn encode_mp4(dir: &Path, out: &Path, fps: u32) -> anyhow::Result<()> {
+    let tmp = svraster::fsio::tmp_path(out);
+    let status = std::process::Command::new("ffmpeg")
+        .args([
+            "-y",
+            "-loglevel",
+            "error",
+            "-framerate",
+            &fps.to_string(),
+            "-i",
+        ])
+        .arg(dir.join("frame_%05d.png"))
+        .args([
+            "-vf",
+            "pad=ceil(iw/2)*2:ceil(ih/2)*2",
+            "-c:v",
+            "libx264",
+            "-pix_fmt",
+            "yuv420p",
+            "-f",
+            "mp4",
+        ])
+        .arg(&tmp)
+        .status();
+    match status {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => bail!(
+            "ffmpeg not found: the frames are in {}; install ffmpeg (Debian: apt-get install \
+             ffmpeg) for the MP4, or pass --out DIR for the PNGs alone",
+            dir.display()
+        ),
+        Err(e) => bail!(
+            "cannot run ffmpeg: {e}; the frames are in {}",
+            dir.display()
+        ),
+        Ok(s) if !s.success() => {
+            let _ = std::fs::remove_file(&tmp);
+            bail!("ffmpeg failed ({s}); the frames are in {}", dir.display())
+        }
+        Ok(_) => std::fs::rename(&tmp, out)
+            .with_context(|| format!("cannot move {} to {}", tmp.display(), out.display())),
+    }
+}
+
+/// Where the frames of `out` go: `out` itself for a folder, `OUT.frames/` beside an
+/// `.mp4`.
+pub fn frames_dir(out: &Path) -> (PathBuf, bool) {
+    let mp4 = out
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| e.eq_ignore_ascii_case("mp4"));
+    if mp4 {
+        let mut name = out.file_name().unwrap_or_default().to_os_string();
+        name.push(".frames");
+        (out.with_file_name(name), true)
+    } else {
+        (out.to_path_buf(), false)
+    }
+}
