@@ -500,10 +500,15 @@ fn mesh_of_the_voxelized_demo_is_accurate_and_readable() {
         assert_eq!(err.matches("error").count(), 1, "{args:?}: {err}");
         assert!(!bad.exists(), "{args:?} left a file");
     }
-    std::fs::write(&bad, b"ply\nformat ascii 1.0\nend_header\n").unwrap();
+    // Big-endian meshes are refused naming the forms read; an (ASCII) mesh without
+    // faces is named too.
+    std::fs::write(&bad, b"ply\nformat binary_big_endian 1.0\nend_header\n").unwrap();
     let (ok, _, err) = svraster(&["eval-mesh", b, "--data", data, "--demo"]);
     assert!(
-        !ok && err.contains("bad.ply") && err.contains("binary_little_endian"),
+        !ok && err.contains("bad.ply") && err.contains("binary_little_endian and ascii"),
         "{err}"
     );
+    std::fs::write(&bad, b"ply\nformat ascii 1.0\nend_header\n").unwrap();
+    let (ok, _, err) = svraster(&["eval-mesh", b, "--data", data, "--demo"]);
+    assert!(!ok && err.contains("bad.ply has no triangles"), "{err}");
 }
