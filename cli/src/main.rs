@@ -268,7 +268,8 @@ enum Command {
         #[arg(long)]
         json: bool,
         /// Render a camera path instead of a split: `orbit` (around what the training
-        /// cameras look at, at their mean distance and height), `train` (a smooth
+        /// cameras look at, at their mean distance and height), `spiral` (NeRF's, for
+        /// forward-facing captures), `train` (a smooth
         /// fly-through of the training cameras in order) or a nerfstudio
         /// camera_path.json (camera_to_world in the dataset's world, OpenGL axes; fov
         /// vertical). --out DIR writes frame_NNNNN.png; --out X.mp4 also encodes H.264

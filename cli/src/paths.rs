@@ -13,7 +13,7 @@ use glam::{DMat3, DQuat, DVec3};
 use svraster::data::Camera;
 use svraster::scene::WorldFrame;
 
-/// The cameras of path `kind` (`orbit`, `train` or a camera_path.json file) through the
+/// The cameras of path `kind` (`orbit`, `spiral`, `train` or a camera_path.json file) through the
 /// training cameras `train` (model frame), `frames` of them at `size` with horizontal
 /// field of view `fov_x` (radians; None: the first training camera's).
 pub fn path_cameras(
@@ -63,6 +63,24 @@ pub fn path_cameras(
                 })
                 .collect())
         }
+        "spiral" => {
+            if frames == 0 {
+                bail!("--frames must be at least 1");
+            }
+            let f: DVec3 = train
+                .iter()
+                .map(|c| DVec3::from(c.rotate([0.0, 0.0, 1.0])))
+                .sum();
+            let agree = f.length() / train.len() as f64;
+            if agree < 0.7 {
+                bail!(
+                    "--path spiral is for forward-facing captures (cameras looking one way); \
+                     these training cameras look around (mean viewing direction {agree:.2} \
+                     of unit length): use --path orbit"
+                );
+            }
+            Ok(spiral(train, frames, fov, w, h))
+        }
         "train" => {
             if frames < 2 {
                 bail!("--frames must be at least 2 for the `train` path");
@@ -71,6 +89,46 @@ pub fn path_cameras(
         }
         file => nerfstudio_path(Path::new(file), world, w, h),
     }
+}
+
+/// NeRF's spiral for forward-facing captures: around the mean camera position, in its
+/// mean image plane with the 90th-percentile spread of the cameras along each of its
+/// axes, two turns with half the rate along the viewing axis, looking at the point the
+/// cameras look at (at least one spread ahead).
+fn spiral(train: &[Camera], frames: usize, fov: f64, w: u32, h: u32) -> Vec<Camera> {
+    let n = train.len() as f64;
+    let pos: Vec<DVec3> = train.iter().map(|c| DVec3::from(c.origin())).collect();
+    let mean = pos.iter().copied().sum::<DVec3>() / n;
+    let fwd = train
+        .iter()
+        .map(|c| DVec3::from(c.rotate([0.0, 0.0, 1.0])))
+        .sum::<DVec3>()
+        .try_normalize()
+        .unwrap_or(DVec3::Z);
+    let up = mean_up(train);
+    let right = fwd
+        .cross(-up)
+        .try_normalize()
+        .unwrap_or(fwd.any_orthonormal_vector());
+    let down = fwd.cross(right);
+    let spread = |axis: DVec3| -> f64 {
+        let mut d: Vec<f64> = pos.iter().map(|p| (*p - mean).dot(axis).abs()).collect();
+        d.sort_by(f64::total_cmp);
+        d[((d.len() - 1) as f64 * 0.9).round() as usize].max(1e-6)
+    };
+    let (rx, ry, rz) = (spread(right), spread(down), spread(fwd));
+    let depth = (look_centre(train) - mean).dot(fwd).max(rx.max(ry).max(rz));
+    let focus = mean + fwd * depth;
+    (0..frames)
+        .map(|i| {
+            let t = 2.0 * std::f64::consts::TAU * i as f64 / frames as f64;
+            let eye = mean
+                + right * (rx * t.cos())
+                + down * (ry * t.sin())
+                + fwd * (rz * (0.5 * t).sin());
+            Camera::look_at(eye.into(), focus.into(), up.into(), fov, w, h)
+        })
+        .collect()
 }
 
 /// The point closest to every training camera's optical axis (least squares): what
@@ -161,7 +219,7 @@ fn fly_through(train: &[Camera], frames: usize, fov: f64, w: u32, h: u32) -> Vec
 fn nerfstudio_path(path: &Path, world: &WorldFrame, w: u32, h: u32) -> anyhow::Result<Vec<Camera>> {
     let text = std::fs::read_to_string(path).with_context(|| {
         format!(
-            "--path {}: not orbit, train or a readable camera_path.json",
+            "--path {}: not orbit, spiral, train or a readable camera_path.json",
             path.display()
         )
     })?;
@@ -266,5 +324,58 @@ pub fn frames_dir(out: &Path) -> (PathBuf, bool) {
         (out.with_file_name(name), true)
     } else {
         (out.to_path_buf(), false)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Forward-facing cameras on a 3×3 grid looking at a point 4 units ahead.
+    fn forward_rig() -> Vec<Camera> {
+        let target = [0.0, 0.0, 4.0];
+        (0..9)
+            .map(|i| {
+                let eye = [(i % 3) as f64 * 0.2 - 0.2, (i / 3) as f64 * 0.1 - 0.1, 0.0];
+                Camera::look_at(eye, target, [0.0, -1.0, 0.0], 1.0, 40, 30)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn spiral_stays_within_the_rig_and_looks_at_its_target() {
+        let rig = forward_rig();
+        let world = WorldFrame::IDENTITY;
+        let cams = path_cameras("spiral", &rig, 24, (40, 30), None, &world).unwrap();
+        assert_eq!(cams.len(), 24);
+        let target = DVec3::new(0.0, 0.0, 4.0);
+        for c in &cams {
+            let o = DVec3::from(c.origin());
+            // Within the cameras' spread (0.2 across, 0.1 up; nothing along the view).
+            assert!(
+                o.x.abs() <= 0.2 + 1e-9 && o.y.abs() <= 0.1 + 1e-9 && o.z.abs() < 1e-3,
+                "{o}"
+            );
+            let f = DVec3::from(c.rotate([0.0, 0.0, 1.0]));
+            assert!(f.dot((target - o).normalize()) > 0.9999, "looks at {f}");
+            // Upright: the screen's down is the rig's down.
+            assert!(DVec3::from(c.rotate([0.0, 1.0, 0.0])).y > 0.99);
+        }
+        // Cameras all around (a 360° capture) are refused.
+        let around: Vec<Camera> = (0..8)
+            .map(|k| {
+                let a = std::f64::consts::TAU * k as f64 / 8.0;
+                Camera::look_at(
+                    [4.0 * a.cos(), 4.0 * a.sin(), 1.0],
+                    [0.0; 3],
+                    [0.0, 0.0, 1.0],
+                    1.0,
+                    40,
+                    30,
+                )
+            })
+            .collect();
+        let e = path_cameras("spiral", &around, 8, (40, 30), None, &world).unwrap_err();
+        assert!(e.to_string().contains("--path orbit"), "{e}");
     }
 }

@@ -577,6 +577,7 @@ fn mesh_as_gltf_binary_reads_back() {
 }
 
 /// `render --path`: an orbit and a fly-through of the training cameras as numbered PNGs
+/// (a spiral of these all-around cameras is refused, pointing to the orbit)
 /// of the asked size, a nerfstudio camera_path.json (its size, its frame count), and an
 /// MP4 whose frame count and size ffprobe reads back (ffmpeg is in tools/setup.sh);
 /// without ffmpeg the frames are kept and the message says how to get the video.
@@ -630,6 +631,18 @@ fn camera_paths_render_frames_and_video() {
         assert_eq!(frames(&out), vec![want; n.parse().unwrap()], "{kind}");
         assert!(out.join("frame_00000.png").is_file());
     }
+    let (ok, _, err) = svraster(&[
+        "render",
+        rs,
+        "--path",
+        "spiral",
+        "--out",
+        dir.path().join("sp").to_str().unwrap(),
+    ]);
+    assert!(
+        !ok && err.contains("forward-facing") && err.contains("--path orbit"),
+        "{err}"
+    );
     // nerfstudio's camera_path.json: 3 cameras of the demo's ring, 32×20.
     let json = dir.path().join("camera_path.json");
     let ring: Vec<serde_json::Value> = (0..3)
