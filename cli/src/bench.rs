@@ -246,7 +246,7 @@ fn bench_render(ctx: &Context, b: &RenderBench, json: bool) -> anyhow::Result<()
     if runs == 0 || b.views == 0 {
         bail!("--runs and --views must be at least 1");
     }
-    let scene = super::render::load_model(model)?;
+    let scene = super::inputs::load_model(model)?;
     let opts = svraster::raster::RenderOptions {
         samples: b.samples,
         supersample: b.ss.unwrap_or(scene.supersample),

@@ -19,7 +19,7 @@ pub enum ExportFormat {
 
 pub fn run(model: &Path, format: ExportFormat, out: &Path, json: bool) -> anyhow::Result<()> {
     refuse_output_over_model(model, out)?;
-    let scene = super::render::load_model(model)?;
+    let scene = super::inputs::load_model(model)?;
     let (name, line) = match format {
         ExportFormat::Ply => {
             let bytes = voxel_ply(&scene);
@@ -160,8 +160,8 @@ pub fn gaussian_ply(scene: &Scene) -> Vec<u8> {
 /// The export must not replace the model it reads, nor the checkpoint pair of its run
 /// (`export RUN --out RUN/model.safetensors` replaced the trained model).
 fn refuse_output_over_model(model: &Path, out: &Path) -> anyhow::Result<()> {
-    use super::render::resolved;
-    let model_file = resolved(&super::render::model_path(model)?);
+    use super::inputs::resolved;
+    let model_file = resolved(&super::inputs::model_path(model)?);
     let o = resolved(out);
     let run_dir = model_file
         .parent()

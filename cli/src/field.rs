@@ -12,7 +12,7 @@ use svraster::gpu::Context;
 use svraster::raster::{RenderOptions, Renderer};
 use svraster::scene::{Scene, SceneGpu};
 
-use super::render::{load_model, output_names, refuse_output_in_dataset};
+use super::inputs::{load_model, output_names, refuse_output_in_dataset};
 
 pub struct FuseArgs {
     pub model: PathBuf,

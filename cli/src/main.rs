@@ -4,9 +4,11 @@
 mod bench;
 mod bench_report;
 mod bench_sort;
+mod demo;
 mod export;
 mod field;
 mod info;
+mod inputs;
 mod mesh;
 mod paths;
 mod plot;
@@ -15,6 +17,7 @@ mod render;
 mod run_dir;
 mod trade;
 mod train;
+mod train_loop;
 
 use std::path::PathBuf;
 
@@ -475,9 +478,9 @@ pub fn run() -> anyhow::Result<()> {
             seed,
             voxelize,
             labels,
-        } => train::run_demo(
+        } => demo::run_demo(
             &ctx,
-            train::DemoArgs {
+            demo::DemoArgs {
                 out,
                 size,
                 iters,

@@ -36,7 +36,7 @@ pub struct MeshArgs {
 pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
     check_output(&a.out)?;
-    let scene = super::render::load_model(&a.model)?;
+    let scene = super::inputs::load_model(&a.model)?;
     let mut ds = data::load(&a.data, &a.split, a.downscale, scene.background, &a.source)?;
     ds.to_model(&scene.world);
     if ds.frames.is_empty() {

@@ -5,32 +5,12 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, Context as _};
+
+use super::inputs::{load_model, output_names, refuse_output_in_dataset};
 use svraster::data::{self, image, Camera};
 use svraster::gpu::Context;
 use svraster::raster::{Image, RenderOptions, Renderer};
 use svraster::scene::SceneGpu;
-use svraster::scene::{checkpoint, Scene};
-
-/// A model argument: a `.safetensors` file, or a run directory holding `model.safetensors`.
-pub fn model_path(model: &Path) -> anyhow::Result<PathBuf> {
-    let p = if model.is_dir() {
-        model.join("model.safetensors")
-    } else {
-        model.to_path_buf()
-    };
-    if !p.is_file() {
-        bail!(
-            "model {} not found: pass a .safetensors checkpoint or a run directory containing model.safetensors",
-            p.display()
-        );
-    }
-    Ok(p)
-}
-
-pub fn load_model(model: &Path) -> anyhow::Result<Scene> {
-    let p = model_path(model)?;
-    Ok(checkpoint::load(&p)?)
-}
 
 /// Writes `NAME.png` (rgb); with `depth`, the metric depth `NAME_depth16.png` (16-bit:
 /// camera-z depth = value × scale, with `scale` and the meaning in `NAME_depth.json`;
@@ -151,22 +131,6 @@ pub fn write_image(
         )?;
     }
     Ok(())
-}
-
-/// Output names for frames: the frame's file stem, or `STEM_INDEX` (its index in the
-/// split) where two frames share a stem, so that no output overwrites another.
-pub fn output_names(names: &[&str]) -> Vec<String> {
-    names
-        .iter()
-        .enumerate()
-        .map(|(i, n)| {
-            if names.iter().filter(|m| *m == n).count() > 1 {
-                format!("{n}_{i}")
-            } else {
-                n.to_string()
-            }
-        })
-        .collect()
 }
 
 pub struct RenderArgs {
@@ -342,45 +306,6 @@ fn render_path(ctx: &Context, a: &RenderArgs, kind: &str) -> anyhow::Result<()> 
             } else {
                 String::new()
             }
-        );
-    }
-    Ok(())
-}
-
-/// `path` made absolute through its longest existing ancestor (symlinks resolved), so
-/// that an output that does not exist yet can be compared with an input.
-pub fn resolved(path: &Path) -> PathBuf {
-    let mut tail = Vec::new();
-    let mut p = path.to_path_buf();
-    loop {
-        if let Ok(c) = p.canonicalize() {
-            return tail.iter().rev().fold(c, |acc: PathBuf, t| acc.join(t));
-        }
-        match (p.file_name().map(|f| f.to_os_string()), p.parent()) {
-            (Some(f), Some(parent)) => {
-                tail.push(f);
-                p = if parent.as_os_str().is_empty() {
-                    PathBuf::from(".")
-                } else {
-                    parent.to_path_buf()
-                };
-            }
-            _ => return path.to_path_buf(),
-        }
-    }
-}
-
-/// Renders are written as STEM.png per frame: inside the dataset they can replace its
-/// photos (`--out DATA/test` did), so the dataset's folder and everything in it are
-/// refused as the output.
-pub fn refuse_output_in_dataset(out: &Path, data: &Path) -> anyhow::Result<()> {
-    let (o, d) = (resolved(out), resolved(data));
-    if o.starts_with(&d) {
-        bail!(
-            "--out {} is inside the dataset {}: the renders (one STEM.png per frame) could \
-             replace its photos. Write them to a folder outside the dataset",
-            out.display(),
-            data.display()
         );
     }
     Ok(())
