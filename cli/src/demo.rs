@@ -218,13 +218,7 @@ pub fn run_demo(ctx: &Context, a: DemoArgs) -> anyhow::Result<()> {
     staged(&data_dir, |dir| Ok(demo::write_dataset(dir, &opts)?))?;
     if a.labels {
         staged(&a.out.join("labels"), |dir| {
-            demo::write_labels(dir, &opts)?;
-            // write_labels makes DIR/labels/SPLIT: move them up into the staged folder.
-            for split in ["train", "val", "test"] {
-                std::fs::rename(dir.join("labels").join(split), dir.join(split))?;
-            }
-            std::fs::remove_dir(dir.join("labels"))?;
-            Ok(())
+            Ok(demo::write_labels(dir, &opts)?)
         })?;
     }
     eprintln!("  done in {:.1} s", t.elapsed().as_secs_f64());

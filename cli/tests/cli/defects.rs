@@ -425,18 +425,7 @@ fn resume_names_a_damaged_checkpoint_file() {
     let data = small_data(dir.path(), "data", 4);
     let run = dir.path().join("run");
     let (ds, rs) = (data.to_str().unwrap(), run.to_str().unwrap());
-    let (ok, _, err) = svraster(&[
-        "train",
-        ds,
-        "--out",
-        rs,
-        "--preset",
-        "quick",
-        "--iters",
-        "20",
-        "--set",
-        "grid_level=3",
-    ]);
+    let (ok, _, err) = train_quick(ds, rs, "20", &[]);
     assert!(ok, "{err}");
     set_run_iters(&run, 30);
     let model = run.join("model.safetensors");
@@ -558,18 +547,7 @@ fn resume_follows_a_moved_dataset() {
     let other = small_data(dir.path(), "other", 12);
     let run = dir.path().join("run");
     let rs = run.to_str().unwrap();
-    let (ok, _, err) = svraster(&[
-        "train",
-        data.to_str().unwrap(),
-        "--out",
-        rs,
-        "--preset",
-        "quick",
-        "--iters",
-        "20",
-        "--set",
-        "grid_level=3",
-    ]);
+    let (ok, _, err) = train_quick(data.to_str().unwrap(), rs, "20", &[]);
     assert!(ok, "{err}");
     set_run_iters(&run, 30);
     let moved = dir.path().join("moved");

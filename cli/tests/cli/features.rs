@@ -11,18 +11,7 @@ fn run_directories_know_their_data() {
     let data = small_data(dir.path(), "data", 6);
     let run = dir.path().join("run");
     let rs = run.to_str().unwrap();
-    let (ok, _, err) = svraster(&[
-        "train",
-        data.to_str().unwrap(),
-        "--out",
-        rs,
-        "--preset",
-        "quick",
-        "--iters",
-        "10",
-        "--set",
-        "grid_level=3",
-    ]);
+    let (ok, _, err) = train_quick(data.to_str().unwrap(), rs, "10", &[]);
     assert!(ok, "{err}");
     let (ok, out, err) = svraster(&["eval", rs, "--json"]);
     assert!(ok && err.contains("(the run's; --data to choose)"), "{err}");
@@ -206,18 +195,7 @@ fn resume_with_more_iterations_extends_a_finished_run() {
     let data = small_data(dir.path(), "data", 9);
     let run = dir.path().join("run");
     let (ds, rs) = (data.to_str().unwrap(), run.to_str().unwrap());
-    let (ok, _, err) = svraster(&[
-        "train",
-        ds,
-        "--out",
-        rs,
-        "--preset",
-        "quick",
-        "--iters",
-        "200",
-        "--set",
-        "grid_level=3",
-    ]);
+    let (ok, _, err) = train_quick(ds, rs, "200", &[]);
     assert!(ok, "{err}");
     let config = || -> serde_json::Value {
         serde_json::from_str(&std::fs::read_to_string(run.join("config.json")).unwrap()).unwrap()
@@ -269,20 +247,12 @@ fn eval_every_logs_held_out_quality() {
     let dir = tmp("eval-every");
     let data = small_data(dir.path(), "data", 10);
     let run = dir.path().join("run");
-    let (ok, _, err) = svraster(&[
-        "train",
+    let (ok, _, err) = train_quick(
         data.to_str().unwrap(),
-        "--out",
         run.to_str().unwrap(),
-        "--preset",
-        "quick",
-        "--iters",
         "50",
-        "--set",
-        "grid_level=3",
-        "--eval-every",
-        "20",
-    ]);
+        &["--eval-every", "20"],
+    );
     assert!(ok, "{err}");
     let evals: Vec<serde_json::Value> = stats_lines(&run)
         .into_iter()
@@ -319,20 +289,7 @@ fn config_file_is_the_base_of_a_new_run() {
     let data = small_data(dir.path(), "data", 13);
     let ds = data.to_str().unwrap();
     let a = dir.path().join("a");
-    let (ok, _, err) = svraster(&[
-        "train",
-        ds,
-        "--out",
-        a.to_str().unwrap(),
-        "--preset",
-        "quick",
-        "--iters",
-        "20",
-        "--set",
-        "grid_level=3",
-        "--set",
-        "lambda_ssim=0.1",
-    ]);
+    let (ok, _, err) = train_quick(ds, a.to_str().unwrap(), "20", &["--set", "lambda_ssim=0.1"]);
     assert!(ok, "{err}");
     let base = a.join("config.json");
     let b = dir.path().join("b");
@@ -425,18 +382,7 @@ fn splat_export_has_the_3dgs_layout() {
     let dir = tmp("splat");
     let data = small_data(dir.path(), "data", 14);
     let run = dir.path().join("run");
-    let (ok, _, err) = svraster(&[
-        "train",
-        data.to_str().unwrap(),
-        "--out",
-        run.to_str().unwrap(),
-        "--preset",
-        "quick",
-        "--iters",
-        "30",
-        "--set",
-        "grid_level=3",
-    ]);
+    let (ok, _, err) = train_quick(data.to_str().unwrap(), run.to_str().unwrap(), "30", &[]);
     assert!(ok, "{err}");
     let out = dir.path().join("g.ply");
     let (ok, _, err) = svraster(&[
@@ -587,18 +533,7 @@ fn camera_paths_render_frames_and_video() {
     let data = small_data(dir.path(), "data", 15);
     let run = dir.path().join("run");
     let rs = run.to_str().unwrap();
-    let (ok, _, err) = svraster(&[
-        "train",
-        data.to_str().unwrap(),
-        "--out",
-        rs,
-        "--preset",
-        "quick",
-        "--iters",
-        "20",
-        "--set",
-        "grid_level=3",
-    ]);
+    let (ok, _, err) = train_quick(data.to_str().unwrap(), rs, "20", &[]);
     assert!(ok, "{err}");
     let frames = |d: &std::path::Path| -> Vec<(u32, u32)> {
         let mut names: Vec<_> = std::fs::read_dir(d)

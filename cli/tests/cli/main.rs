@@ -60,6 +60,25 @@ fn logged(run: &std::path::Path) -> Vec<serde_json::Value> {
         .collect()
 }
 
+/// `svraster train DATA --out RUN --preset quick --iters N --set grid_level=3` and
+/// `extra`: the small runs most command tests start from.
+fn train_quick(data: &str, run: &str, iters: &str, extra: &[&str]) -> (bool, String, String) {
+    let mut args = vec![
+        "train",
+        data,
+        "--out",
+        run,
+        "--preset",
+        "quick",
+        "--iters",
+        iters,
+        "--set",
+        "grid_level=3",
+    ];
+    args.extend_from_slice(extra);
+    svraster(&args)
+}
+
 /// A small demo dataset in `dir/name` (no training).
 fn small_data(dir: &std::path::Path, name: &str, seed: u64) -> PathBuf {
     let data = dir.join(name);

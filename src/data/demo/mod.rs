@@ -175,13 +175,13 @@ pub fn demo_splits(opts: &DemoOptions) -> Result<Vec<DemoSplit>> {
 }
 
 /// Writes per-primitive label images of every split ([`render_labels`]: 40 times the
-/// primitive's index plus one, background 0) as 8-bit gray PNGs `labels/{train,val,test}/r_i.png` in `dir`,
-/// named like the frames, for field fusion (`svraster fuse --from DIR/labels/train`).
+/// primitive's index plus one, background 0) as 8-bit gray PNGs `{train,val,test}/r_i.png`
+/// in `dir`, named like the frames, for field fusion (`svraster fuse --from DIR/train`).
 pub fn write_labels(dir: &Path, opts: &DemoOptions) -> Result<()> {
     let splits = demo_splits(opts)?;
     let mut jobs: Vec<(PathBuf, &Camera)> = Vec::new();
     for split in &splits {
-        let sub_dir = dir.join("labels").join(split.name);
+        let sub_dir = dir.join(split.name);
         std::fs::create_dir_all(&sub_dir).map_err(|e| io_error(&sub_dir, e))?;
         for (i, camera) in split.cameras.iter().enumerate() {
             jobs.push((sub_dir.join(format!("r_{i}.png")), camera));
