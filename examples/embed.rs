@@ -1,6 +1,6 @@
 //! The smallest embedding: record a frame of a model into a command buffer with the
 //! host's camera matrices and read the premultiplied sRGB pixels from a buffer.
-//! README's "Embedding" section shows this file; `examples/viewer/` is a full host
+//! README's "Embedding" section shows this file; `src/viewer/` (`svraster view`) is a full host
 //! (its own device, swapchain, depth buffer and mesh, frames in flight).
 //!
 //! ```text

@@ -9,6 +9,8 @@
 //!   subdivision of the voxel layout.
 //! - [`eval`]: PSNR, SSIM and model evaluation (the numbers every report quotes).
 //! - [`mesh`]: TSDF fusion and marching cubes over sparse voxels, PLY output.
+//! - `viewer` (feature `viewer`): a windowed viewer, a small host engine embedding the
+//!   field (`svraster view`).
 //!
 //! The types most programs need are re-exported here.
 
@@ -26,6 +28,8 @@ pub mod scan;
 pub mod scene;
 pub mod sort;
 pub mod train;
+#[cfg(feature = "viewer")]
+pub mod viewer;
 
 /// The pinhole camera a frame is rendered from.
 pub use camera::Camera;

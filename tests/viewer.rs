@@ -1,4 +1,4 @@
-//! The example host engine (examples/viewer/) under a virtual X server: it opens a
+//! The host-engine demo (examples/viewer.rs on src/viewer/) under a virtual X server: it opens a
 //! window, draws its own grid and cube, embeds the field through `raster::host` and
 //! writes a screenshot, with the validation layer on. Three screenshots of the same
 //! view — composite, field only (`--no-mesh`), mesh only (`--no-field`) — show the
@@ -23,7 +23,7 @@ fn profile_dir() -> PathBuf {
 fn example(name: &str) -> PathBuf {
     let dir = profile_dir();
     let mut cmd = Command::new(env!("CARGO"));
-    cmd.args(["build", "--example", name])
+    cmd.args(["build", "--features", "viewer", "--example", name])
         .current_dir(env!("CARGO_MANIFEST_DIR"));
     if dir.file_name().is_some_and(|n| n == "release") {
         cmd.arg("--release");
@@ -91,7 +91,7 @@ fn viewer_composites_the_field_with_its_own_mesh() {
         &dir.path().join("mesh.png"),
         &["--no-field"],
     );
-    // The host's clear colour (examples/viewer/ CLEAR, 8-bit).
+    // The host's clear colour (examples/viewer.rs CLEAR, 8-bit).
     let clear = *mesh.get_pixel(0, 0);
     let (mut occluded, mut covering, mut elsewhere) = (0, 0, 0);
     for (x, y, m) in mesh.enumerate_pixels() {

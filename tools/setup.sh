@@ -14,7 +14,7 @@
 #  - ffmpeg: `render --path … --out X.mp4` encodes with it (and ffprobe reads the video
 #    back in cli/tests/cli/features.rs)
 #  - xvfb xauth and the X11 client libraries winit opens at run time (libx11-6 libx11-xcb1
-#    libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0): examples/viewer/ runs under a
+#    libxcursor1 libxrandr2 libxi6 libxkbcommon-x11-0): svraster view and examples/viewer.rs run under a
 #    virtual X server in tests/viewer.rs
 set -euo pipefail
 MESA=${MESA:-backports}

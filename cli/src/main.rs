@@ -18,6 +18,7 @@ mod run_dir;
 mod trade;
 mod train;
 mod train_loop;
+mod view;
 
 use std::path::PathBuf;
 
@@ -448,6 +449,10 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Look at a model in a window: orbit/fly, the training cameras as frusta to jump
+    /// between (`]` `[`), colour/depth/normal (M), SH degree (H), samples (K), frame
+    /// time on screen; --screenshot for headless use.
+    View(view::ViewArgs),
     /// Benchmarks.
     Bench {
         #[command(subcommand)]
@@ -457,11 +462,24 @@ enum Command {
 
 pub fn run() -> anyhow::Result<()> {
     let cli = Cli::parse();
+    // The viewer opens its own device, one that can present to its window.
+    let cli = match cli.cmd {
+        Command::View(a) => {
+            if cli.device.is_some() {
+                anyhow::bail!(
+                    "view picks the first device that can present to its window; --device                      applies to the other commands"
+                );
+            }
+            return view::run(a, cli.validation);
+        }
+        cmd => Cli { cmd, ..cli },
+    };
     let ctx = Context::new(&ContextOptions {
         device: cli.device.clone(),
         validation: cli.validation,
     })?;
     match cli.cmd {
+        Command::View(_) => unreachable!("handled before the context is made"),
         Command::Info { json } => info::run(&ctx, json)?,
         Command::Bench { what } => bench::run(&ctx, what)?,
         Command::Export {

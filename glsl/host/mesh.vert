@@ -1,5 +1,5 @@
 #version 460
-// The example host engine's mesh pass (examples/viewer/, tests/host/): vertices
+// The viewer host engine's geometry pass (src/viewer/, tests/host/): vertices
 // pulled from a buffer device address, 6 floats each (position xyz, colour rgb),
 // transformed by the host's view-projection (Vulkan clip space).
 #extension GL_EXT_buffer_reference : require

@@ -94,6 +94,7 @@ const uint FLAG_NEED_CHUNKS = 2u;     // a tile list is longer than the chunks r
 // Host output formats and depth modes (raster/host_output.comp).
 const uint HOST_RGBA8_UNORM = 0u, HOST_RGBA8_SRGB = 1u, HOST_RGBA16F = 2u, HOST_RGBA32F = 3u;
 const uint HOST_DEPTH_MEDIAN = 0u, HOST_DEPTH_MEAN = 1u;
+const uint HOST_IMAGE_COLOUR = 0u, HOST_IMAGE_DEPTH = 1u, HOST_IMAGE_NORMAL = 2u;
 
 // Channels of the planar image buffers.
 const uint CH_R = 0u, CH_G = 1u, CH_B = 2u, CH_T = 3u, CH_DEPTH = 4u, CH_DMED = 5u,

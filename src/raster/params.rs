@@ -154,5 +154,9 @@ pub(super) struct HostOutputPush {
     pub(super) depth_mode: u32,
     pub(super) depth_clear: f32,
     pub(super) reverse: u32,
+    pub(super) image: u32,
+    pub(super) near_depth: f32,
+    pub(super) far_depth: f32,
+    pub(super) pad_: u32,
 }
 push_constants!(RASTER_HOST_OUTPUT, HostOutputPush);

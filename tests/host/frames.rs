@@ -444,3 +444,105 @@ fn frames_in_flight_grow_and_stay_clean() {
     drop(host);
     assert_host_clean();
 }
+
+/// `HostRenderer::set_image`: the colour target shows the depth (grey by the reference's
+/// median depth where its alpha reaches 0.5, transparent elsewhere) or the normal
+/// ((−n/|n|)·0.5 + 0.5 of the reference's composited density gradient, times alpha),
+/// each as premultiplied linear light α·decode(v), within the colour tolerance.
+#[test]
+fn host_image_shows_depth_and_normals() {
+    use svraster::raster::host::HostImage;
+    let host = Host::new(false);
+    let (scene, cam) = scene_and_camera(23);
+    let ctx = host.context();
+    let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+    let mut hr = HostRenderer::new(&ctx, 2).unwrap();
+    let hv = host_view(&cam, None, true);
+    let (rcam, _) = hv.camera().unwrap();
+    let npix = (W * H) as u64;
+    let usage = vk::BufferUsageFlags::TRANSFER_DST;
+    let bufs = [host.buffer(npix * 16, usage), host.buffer(npix * 16, usage)];
+    // The depth range: the scene's centre ± its extent, seen from the camera.
+    let dc = cam.world_to_camera(scene.center.map(|v| v as f64))[2] as f32;
+    let (near, far) = (dc - 0.5 * scene.extent, dc + 0.5 * scene.extent);
+    let images = [HostImage::Depth { near, far }, HostImage::Normal];
+    let targets: Vec<HostTarget> = bufs
+        .iter()
+        .map(|b| HostTarget {
+            color: ColorTarget::Buffer {
+                buffer: b.buffer,
+                offset: 0,
+                format: ColorFormat::Rgba32Float,
+            },
+            depth: None,
+        })
+        .collect();
+    let opts = RenderOptions::default();
+    for (i, t) in targets.iter().enumerate() {
+        hr.prepare(i as u64, &gpu, &hv, &opts, t).unwrap();
+    }
+    let cmd = host.command_buffers(1)[0];
+    let fence = host.fence(false);
+    host.submit(cmd, fence, |cmd| {
+        for (i, t) in targets.iter().enumerate() {
+            hr.set_image(images[i]);
+            hr.record(cmd, i as u64, &gpu, &hv, &opts, t).unwrap();
+        }
+    });
+    host.wait(fence);
+    let depth: Vec<f32> = bufs[0].read();
+    let normal: Vec<f32> = bufs[1].read();
+    let (mut ed, mut en, mut surfaces, mut shaded) = (0f64, 0f64, 0, 0);
+    for py in 0..H {
+        for px in 0..W {
+            let i = (py * W + px) as usize;
+            let r = render_pixel(&rcam, &scene, px, py);
+            // Depth: skip pixels whose alpha or median is decided at 0.5 by a hair.
+            if (r.alpha - 0.5).abs() > 1e-3 && !r.median_ambiguous {
+                let want = if r.alpha >= 0.5 {
+                    surfaces += 1;
+                    let t = ((r.depth_median - near as f64) / (far - near) as f64).clamp(0.0, 1.0);
+                    let g = srgb_decode(1.0 - 0.8 * t);
+                    [g, g, g, 1.0]
+                } else {
+                    [0.0; 4]
+                };
+                for c in 0..4 {
+                    ed = ed.max((depth[4 * i + c] as f64 - want[c]).abs());
+                }
+            }
+            // Normal.
+            let l = r.normal.iter().map(|v| v * v).sum::<f64>().sqrt();
+            if l > 1e-4 {
+                shaded += 1;
+                let a = r.alpha.clamp(0.0, 1.0);
+                for c in 0..3 {
+                    let want = a * srgb_decode(-r.normal[c] / l * 0.5 + 0.5);
+                    en = en.max((normal[4 * i + c] as f64 - want).abs());
+                }
+                en = en.max((normal[4 * i + 3] as f64 - a).abs());
+            }
+        }
+    }
+    println!(
+        "depth image: {surfaces} surface pixels, error {ed:.2e}; normal image: {shaded} \
+         pixels, error {en:.2e}"
+    );
+    assert!(surfaces > 50 && shaded > 100, "{surfaces} {shaded}");
+    assert!(ed <= RGB_TOL, "depth image error {ed}");
+    assert!(en <= RGB_TOL, "normal image error {en}");
+    unsafe { host.device.destroy_fence(fence, None) };
+    for b in bufs {
+        host.destroy_buffer(b);
+    }
+    drop(hr);
+    drop(gpu);
+    assert_eq!(ctx.validation_messages(), 0);
+    drop(ctx);
+    drop(host);
+    assert_host_clean();
+}
+
+fn render_pixel(cam: &Camera, scene: &Scene, px: u32, py: u32) -> RefPixel {
+    common::reference::render_pixel(scene, cam, px as f64 + 0.5, py as f64 + 0.5, 1)
+}

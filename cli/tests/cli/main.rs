@@ -193,3 +193,4 @@ mod export_bench;
 mod features;
 mod field;
 mod resume_signals;
+mod view;

@@ -122,6 +122,23 @@ pub enum DepthMode {
     Mean,
 }
 
+/// What the colour target shows ([`HostRenderer::set_image`]). Depth and normal are
+/// display values like the model's colours (written the same way: premultiplied linear
+/// light, α·srgb_decode(v/α)), as `svraster render --depth/--normal` draws them.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum HostImage {
+    /// The field's colour.
+    #[default]
+    Colour,
+    /// Grey by camera depth: `1 − 0.8·clamp((d − near)/(far − near), 0, 1)`, opaque where
+    /// the alpha reaches 0.5 (d: the nearest median depth over the output pixel's render
+    /// pixels, camera z in the field's units), transparent elsewhere.
+    Depth { near: f32, far: f32 },
+    /// The outward unit normal −n/|n| of the composited density gradient n as
+    /// `(−n/|n|)·0.5 + 0.5`, in the field's axes, times the alpha.
+    Normal,
+}
+
 /// Where the colour goes.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum ColorTarget {
@@ -200,6 +217,7 @@ pub struct HostRenderer {
     /// `prepare`, so a shortfall costs one incomplete frame per slot at most.
     min_entries: u64,
     min_chunks: u32,
+    image: HostImage,
 }
 
 impl HostRenderer {
@@ -234,6 +252,7 @@ impl HostRenderer {
             slots,
             min_entries: 0,
             min_chunks: 1,
+            image: HostImage::Colour,
         })
     }
 
@@ -243,6 +262,12 @@ impl HostRenderer {
         for s in &mut self.slots {
             s.renderer.set_chunk_size(entries);
         }
+    }
+
+    /// What the colour target shows from the next recorded frame on (default: the
+    /// colour). The depth target, when given, behaves the same in every mode.
+    pub fn set_image(&mut self, image: HostImage) {
+        self.image = image;
     }
 
     /// Entries per segment of a tile's list (0: off; see
@@ -361,6 +386,7 @@ impl HostRenderer {
     ) -> Result<()> {
         let n = self.slots.len() as u64;
         let ctx = self.ctx.clone();
+        let image = self.image;
         let slot = &mut self.slots[(frame_index % n) as usize];
         let p = match slot.prepared.take() {
             Some(p)
@@ -487,6 +513,20 @@ impl HostRenderer {
                 },
                 depth_clear: conv.clear_value(),
                 reverse: conv.reverse as u32,
+                image: match image {
+                    HostImage::Colour => glsl::HOST_IMAGE_COLOUR,
+                    HostImage::Depth { .. } => glsl::HOST_IMAGE_DEPTH,
+                    HostImage::Normal => glsl::HOST_IMAGE_NORMAL,
+                },
+                near_depth: match image {
+                    HostImage::Depth { near, .. } => near,
+                    _ => 0.0,
+                },
+                far_depth: match image {
+                    HostImage::Depth { far, .. } => far,
+                    _ => 1.0,
+                },
+                pad_: 0,
             },
             npix as u32,
         );

@@ -1,10 +1,13 @@
 //! The viewer's frames: the swapchain and its per-image resources, one frame drawn
 //! (the engine's frame recorded into the host's command buffer, composited with the
-//! host's mesh by depth), and screenshots.
+//! host's geometry by depth, then the overlay), and screenshots.
 
 use image::ImageEncoder as _;
 
 use super::*;
+
+/// The overlay's largest size (its buffer per frame in flight).
+const HUD_MAX: (u32, u32) = (1024, 128);
 
 impl Gpu {
     /// (Re)creates the swapchain and the per-frame images at the window's size.
@@ -55,19 +58,23 @@ impl Gpu {
                 .surface_loader
                 .get_physical_device_surface_formats(self.pdev, self.surface)
                 .map_err(vkerr("surface formats"))?;
-            // An sRGB swapchain: the blit from the sRGB attachment keeps the encoding.
+            // A swapchain of the attachment's encoding (sRGB, or UNORM holding display
+            // values): the blit between them keeps the values shown.
+            let srgb = self.colour_format == vk::Format::R8G8B8A8_SRGB;
+            let wanted = if srgb {
+                [vk::Format::B8G8R8A8_SRGB, vk::Format::R8G8B8A8_SRGB]
+            } else {
+                [vk::Format::B8G8R8A8_UNORM, vk::Format::R8G8B8A8_UNORM]
+            };
             let format = formats
                 .iter()
-                .find(|f| {
-                    matches!(
-                        f.format,
-                        vk::Format::B8G8R8A8_SRGB | vk::Format::R8G8B8A8_SRGB
-                    )
-                })
+                .find(|f| wanted.contains(&f.format))
                 .or_else(|| {
                     eprintln!(
-                        "warning: no sRGB swapchain format: the picture is shown too dark \
-                         (the screenshot is right)"
+                        "warning: no {} swapchain format: the picture is shown too {} (the \
+                         screenshot is right)",
+                        if srgb { "sRGB" } else { "UNORM" },
+                        if srgb { "dark" } else { "bright" }
                     );
                     formats.first()
                 })
@@ -129,7 +136,7 @@ impl Gpu {
             let npix = self.extent.width as u64 * self.extent.height as u64;
             for cmd in cmds {
                 let colour = self.image(
-                    COLOUR_FORMAT,
+                    self.colour_format,
                     vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC,
                     vk::ImageAspectFlags::COLOR,
                 )?;
@@ -144,6 +151,15 @@ impl Gpu {
                     npix * ColorFormat::Rgba16Float.bytes(),
                     vk::BufferUsageFlags::TRANSFER_DST | vk::BufferUsageFlags::STORAGE_BUFFER,
                     false,
+                )?;
+                let hud_size = (
+                    self.extent.width.min(HUD_MAX.0),
+                    self.extent.height.min(HUD_MAX.1),
+                );
+                let hud = self.buffer(
+                    hud_size.0 as u64 * hud_size.1 as u64 * 8,
+                    vk::BufferUsageFlags::STORAGE_BUFFER,
+                    true,
                 )?;
                 self.frames.push(FrameRes {
                     cmd,
@@ -161,6 +177,8 @@ impl Gpu {
                     colour,
                     depth,
                     field,
+                    hud,
+                    hud_size,
                     timestamps: Timestamps::new(&self.ctx, 4).map_err(|e| e.to_string())?,
                     pending: false,
                 });
@@ -181,8 +199,10 @@ impl Gpu {
                     self.device.destroy_image(i, None);
                     self.device.free_memory(m, None);
                 }
-                self.device.destroy_buffer(f.field.0, None);
-                self.device.free_memory(f.field.1, None);
+                for (b, m, _) in [f.field, f.hud] {
+                    self.device.destroy_buffer(b, None);
+                    self.device.free_memory(m, None);
+                }
             }
         }
     }
@@ -192,8 +212,7 @@ impl Gpu {
     pub(super) fn draw(
         &mut self,
         frame: u64,
-        cam: &Orbit,
-        args: &Args,
+        fv: &FrameView,
         screenshot: bool,
     ) -> Result<Option<f64>, String> {
         if self.resized {
@@ -232,8 +251,8 @@ impl Gpu {
                 Err(e) => return Err(format!("vkAcquireNextImageKHR: {e}")),
             };
             let (w, h) = (self.extent.width, self.extent.height);
-            let view = cam.view();
-            let proj = cam.projection(w, h);
+            // Reverse-Z with an infinite far plane (the viewer's depth convention).
+            let (view, proj) = matrices_for(&fv.nav.camera(w, h), None, true);
             let hv = HostView {
                 view,
                 projection: proj,
@@ -259,7 +278,15 @@ impl Gpu {
                     write: Some(DepthMode::Median),
                 }),
             };
-            if !args.no_field {
+            self.hr.set_image(match fv.mode {
+                ViewMode::Colour => HostImage::Colour,
+                ViewMode::Depth => {
+                    let (near, far) = fv.nav.depth_range();
+                    HostImage::Depth { near, far }
+                }
+                ViewMode::Normal => HostImage::Normal,
+            });
+            if fv.draw_field {
                 // Before recording: reads this slot's previous frame's stats (its fence
                 // was waited for above) and grows what it found short.
                 let report = self
@@ -339,7 +366,14 @@ impl Gpu {
                 .load_op(vk::AttachmentLoadOp::CLEAR)
                 .store_op(vk::AttachmentStoreOp::STORE)
                 .clear_value(vk::ClearValue {
-                    color: vk::ClearColorValue { float32: CLEAR },
+                    color: vk::ClearColorValue {
+                        // Depth and normal images are drawn over black.
+                        float32: if fv.mode == ViewMode::Colour {
+                            self.clear
+                        } else {
+                            [0.0, 0.0, 0.0, 1.0]
+                        },
+                    },
                 })];
             let depth_att = vk::RenderingAttachmentInfo::default()
                 .image_view(f.depth.2)
@@ -360,26 +394,34 @@ impl Gpu {
                     .color_attachments(&colour_att)
                     .depth_attachment(&depth_att),
             );
-            if !args.no_mesh {
-                dev.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, self.mesh_pipeline.0);
-                dev.cmd_set_viewport(cmd, 0, &[viewport]);
-                dev.cmd_set_scissor(cmd, 0, &[area]);
-                let mut push = [0u8; 72];
-                push[..64].copy_from_slice(bytemuck::bytes_of(&(proj * view).to_cols_array()));
-                push[64..].copy_from_slice(&self.vertices.2.to_le_bytes());
-                dev.cmd_push_constants(
-                    cmd,
-                    self.mesh_pipeline.1,
-                    vk::ShaderStageFlags::VERTEX,
-                    0,
-                    &push,
-                );
-                dev.cmd_draw(cmd, self.vertex_count, 1, 0, 0);
+            if fv.draw_geometry {
+                let draws = [
+                    (self.mesh_pipeline, 0, self.triangle_vertices),
+                    (
+                        self.line_pipeline,
+                        self.triangle_vertices,
+                        self.line_vertices,
+                    ),
+                ];
+                for (pipeline, first, count) in draws {
+                    if count == 0 {
+                        continue;
+                    }
+                    dev.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, pipeline.0);
+                    dev.cmd_set_viewport(cmd, 0, &[viewport]);
+                    dev.cmd_set_scissor(cmd, 0, &[area]);
+                    let mut push = [0u8; 72];
+                    push[..64].copy_from_slice(bytemuck::bytes_of(&(proj * view).to_cols_array()));
+                    let address = self.vertices.2 + first as u64 * 24;
+                    push[64..].copy_from_slice(&address.to_le_bytes());
+                    dev.cmd_push_constants(cmd, pipeline.1, vk::ShaderStageFlags::VERTEX, 0, &push);
+                    dev.cmd_draw(cmd, count, 1, 0, 0);
+                }
             }
             dev.cmd_end_rendering(cmd);
             f.timestamps.mark(cmd, "mesh");
             // 2. The field, cut at the host's depth, writing its depth back.
-            if !args.no_field {
+            if fv.draw_field {
                 self.hr
                     .record(cmd, frame, &self.scene, &hv, &self.opts, &field_target)
                     .map_err(|e| e.to_string())?;
@@ -401,7 +443,22 @@ impl Gpu {
                 &[],
                 &[],
             );
-            if !args.no_field {
+            // The overlay, rasterised into this slot's buffer (its previous frame is done).
+            let hud = match fv.hud {
+                Some(lines) => {
+                    let (hw, hh) = f.hud_size;
+                    let (hw, hh, px) = self.hud.raster(lines, hw, hh);
+                    let bytes: &[u8] = bytemuck::cast_slice(&px);
+                    let ptr = dev
+                        .map_memory(f.hud.1, 0, bytes.len() as u64, vk::MemoryMapFlags::empty())
+                        .map_err(vkerr("vkMapMemory"))?;
+                    std::ptr::copy_nonoverlapping(bytes.as_ptr(), ptr as *mut u8, bytes.len());
+                    dev.unmap_memory(f.hud.1);
+                    Some((hw, hh))
+                }
+                None => None,
+            };
+            if fv.draw_field || hud.is_some() {
                 let load_att = [vk::RenderingAttachmentInfo::default()
                     .image_view(f.colour.2)
                     .image_layout(vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL)
@@ -416,18 +473,38 @@ impl Gpu {
                 );
                 dev.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::GRAPHICS, self.blend_pipeline.0);
                 dev.cmd_set_viewport(cmd, 0, &[viewport]);
-                dev.cmd_set_scissor(cmd, 0, &[area]);
-                let mut push = [0u8; 12];
-                push[..8].copy_from_slice(&f.field.2.to_le_bytes());
-                push[8..].copy_from_slice(&w.to_le_bytes());
-                dev.cmd_push_constants(
-                    cmd,
-                    self.blend_pipeline.1,
-                    vk::ShaderStageFlags::FRAGMENT,
-                    0,
-                    &push,
-                );
-                dev.cmd_draw(cmd, 3, 1, 0, 0);
+                // The field over the whole frame, then the overlay in its corner (the
+                // blend reads pixel (x, y) of a buffer `width` pixels wide).
+                let mut blends = vec![];
+                if fv.draw_field {
+                    blends.push((f.field.2, w, area));
+                }
+                if let Some((hw, hh)) = hud {
+                    let rect = vk::Rect2D {
+                        offset: vk::Offset2D::default(),
+                        extent: vk::Extent2D {
+                            width: hw,
+                            height: hh,
+                        },
+                    };
+                    blends.push((f.hud.2, hw, rect));
+                }
+                let display = (self.colour_format == vk::Format::R8G8B8A8_UNORM) as u32;
+                for (address, width, scissor) in blends {
+                    dev.cmd_set_scissor(cmd, 0, &[scissor]);
+                    let mut push = [0u8; 16];
+                    push[..8].copy_from_slice(&address.to_le_bytes());
+                    push[8..12].copy_from_slice(&width.to_le_bytes());
+                    push[12..].copy_from_slice(&display.to_le_bytes());
+                    dev.cmd_push_constants(
+                        cmd,
+                        self.blend_pipeline.1,
+                        vk::ShaderStageFlags::FRAGMENT,
+                        0,
+                        &push,
+                    );
+                    dev.cmd_draw(cmd, 3, 1, 0, 0);
+                }
                 dev.cmd_end_rendering(cmd);
             }
             // 4. To the swapchain image (and the screenshot buffer).
@@ -589,7 +666,7 @@ impl Gpu {
             image::codecs::png::PngEncoder::new(&mut png)
                 .write_image(&pixels, w, h, image::ExtendedColorType::Rgba8)
                 .map_err(|e| e.to_string())?;
-            svraster::fsio::write_atomic(path, &png).map_err(|e| e.to_string())
+            crate::fsio::write_atomic(path, &png).map_err(|e| e.to_string())
         }
     }
 }

@@ -1,10 +1,19 @@
-//! The viewer's Vulkan set-up: device, queue, memory, buffers, images and the two
-//! graphics pipelines (the host's mesh, and the blend of the engine's frame).
+//! The viewer's Vulkan set-up: device, queue, memory, buffers, images and the three
+//! graphics pipelines (the host's triangles and lines, and the blend of the engine's
+//! frame and of the overlay).
 
 use super::*;
 
+/// The graphics pipelines.
+#[derive(Clone, Copy, PartialEq, Eq)]
+pub(super) enum Pass {
+    Triangles,
+    Lines,
+    Blend,
+}
+
 impl Gpu {
-    pub(super) fn new(window: Window, scene: &Scene, args: &Args) -> Result<Gpu, String> {
+    pub(super) fn new(window: Window, scene: &Scene, opts: &ViewerOptions) -> Result<Gpu, String> {
         unsafe {
             let entry = ash::Entry::load().map_err(|e| format!("no Vulkan loader: {e}"))?;
             let display = window.display_handle().map_err(|e| e.to_string())?.as_raw();
@@ -13,7 +22,7 @@ impl Gpu {
                 .map_err(vkerr("surface extensions"))?
                 .to_vec();
             let mut layers = vec![];
-            if args.validation {
+            if opts.validation {
                 exts.push(ash::ext::debug_utils::NAME.as_ptr());
                 layers.push(c"VK_LAYER_KHRONOS_validation".as_ptr());
             }
@@ -27,7 +36,7 @@ impl Gpu {
                     None,
                 )
                 .map_err(vkerr("vkCreateInstance"))?;
-            let debug = if args.validation {
+            let debug = if opts.validation {
                 let du = ash::ext::debug_utils::Instance::new(&entry, &instance);
                 let m = du
                     .create_debug_utils_messenger(
@@ -118,7 +127,7 @@ impl Gpu {
                 device: device.clone(),
                 queue_family_index: qf,
                 queue_index: 0,
-                debug_utils: args.validation,
+                debug_utils: opts.validation,
                 float_atomic_add: false,
                 full_subgroups,
                 conditional_rendering: false,
@@ -135,15 +144,25 @@ impl Gpu {
                 )
                 .map_err(vkerr("vkCreateCommandPool"))?;
             let swapchain_loader = ash::khr::swapchain::Device::new(&instance, &device);
-            let mesh = host_mesh(scene, Orbit::new(scene, args).up);
+            let mut mesh = opts.triangles.clone();
+            mesh.extend_from_slice(&opts.lines);
+            // A buffer of at least one vertex (none drawn when there is no geometry).
+            mesh.resize(mesh.len().max(6), 0.0);
             let mut gpu = Gpu {
                 hr: ManuallyDrop::new(hr),
                 scene: ManuallyDrop::new(scene_gpu),
                 ctx: ManuallyDrop::new(ctx),
                 opts: RenderOptions {
-                    samples: args.samples,
-                    supersample: 1.0,
+                    samples: opts.samples,
+                    supersample: scene.supersample.max(1.0),
                 },
+                clear: [opts.clear[0], opts.clear[1], opts.clear[2], 1.0],
+                colour_format: if opts.display_blend {
+                    vk::Format::R8G8B8A8_UNORM
+                } else {
+                    vk::Format::R8G8B8A8_SRGB
+                },
+                hud: hud::Hud::new()?,
                 frames: vec![],
                 swapchain: vk::SwapchainKHR::null(),
                 images: vec![],
@@ -151,9 +170,11 @@ impl Gpu {
                 extent: vk::Extent2D::default(),
                 resized: false,
                 mesh_pipeline: (vk::Pipeline::null(), vk::PipelineLayout::null()),
+                line_pipeline: (vk::Pipeline::null(), vk::PipelineLayout::null()),
                 blend_pipeline: (vk::Pipeline::null(), vk::PipelineLayout::null()),
                 vertices: (vk::Buffer::null(), vk::DeviceMemory::null(), 0),
-                vertex_count: (mesh.len() / 6) as u32,
+                triangle_vertices: (opts.triangles.len() / 6) as u32,
+                line_vertices: (opts.lines.len() / 6) as u32,
                 screenshot: None,
                 screenshot_frame: None,
                 pool,
@@ -189,8 +210,9 @@ impl Gpu {
                 mesh.len() * 4,
             );
             gpu.device.unmap_memory(gpu.vertices.1);
-            gpu.mesh_pipeline = gpu.pipeline(true)?;
-            gpu.blend_pipeline = gpu.pipeline(false)?;
+            gpu.mesh_pipeline = gpu.pipeline(Pass::Triangles)?;
+            gpu.line_pipeline = gpu.pipeline(Pass::Lines)?;
+            gpu.blend_pipeline = gpu.pipeline(Pass::Blend)?;
             gpu.create_swapchain()?;
             Ok(gpu)
         }
@@ -317,13 +339,14 @@ impl Gpu {
         }
     }
 
-    /// The mesh pipeline (colour + reverse-Z depth) or the blend pipeline (colour only,
-    /// premultiplied-alpha blending).
+    /// The geometry pipelines (colour + reverse-Z depth) or the blend pipeline (colour
+    /// only, premultiplied-alpha blending).
     pub(super) fn pipeline(
         &self,
-        mesh: bool,
+        pass: Pass,
     ) -> Result<(vk::Pipeline, vk::PipelineLayout), String> {
-        use svraster::gpu::graphics::{
+        let mesh = pass != Pass::Blend;
+        use crate::gpu::graphics::{
             HOST_BLEND_FRAG, HOST_BLEND_VERT, HOST_MESH_FRAG, HOST_MESH_VERT,
         };
         unsafe {
@@ -345,7 +368,7 @@ impl Gpu {
                     vk::ShaderStageFlags::FRAGMENT
                 },
                 offset: 0,
-                size: if mesh { 72 } else { 12 },
+                size: if mesh { 72 } else { 16 },
             }];
             let layout = self
                 .device
@@ -365,8 +388,13 @@ impl Gpu {
                     .name(c"main"),
             ];
             let vi = vk::PipelineVertexInputStateCreateInfo::default();
-            let ia = vk::PipelineInputAssemblyStateCreateInfo::default()
-                .topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+            let ia = vk::PipelineInputAssemblyStateCreateInfo::default().topology(
+                if pass == Pass::Lines {
+                    vk::PrimitiveTopology::LINE_LIST
+                } else {
+                    vk::PrimitiveTopology::TRIANGLE_LIST
+                },
+            );
             let vp = vk::PipelineViewportStateCreateInfo::default()
                 .viewport_count(1)
                 .scissor_count(1);
@@ -392,7 +420,7 @@ impl Gpu {
             let cb = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend);
             let dynamic = [vk::DynamicState::VIEWPORT, vk::DynamicState::SCISSOR];
             let dy = vk::PipelineDynamicStateCreateInfo::default().dynamic_states(&dynamic);
-            let formats = [COLOUR_FORMAT];
+            let formats = [self.colour_format];
             let mut rendering = vk::PipelineRenderingCreateInfo::default()
                 .color_attachment_formats(&formats)
                 .depth_attachment_format(if mesh {
