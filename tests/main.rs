@@ -24,6 +24,7 @@ mod raster;
 mod reference_grad;
 mod sort;
 mod ssim;
+mod svraster_import;
 mod topology;
 mod train;
 mod train_grad;

@@ -15,15 +15,28 @@ pub fn model_path(model: &Path) -> anyhow::Result<PathBuf> {
     };
     if !p.is_file() {
         bail!(
-            "model {} not found: pass a .safetensors checkpoint or a run directory containing model.safetensors",
+            "model {} not found: pass a .safetensors checkpoint, a run directory containing model.safetensors, or an SVRaster .pt",
             p.display()
         );
     }
     Ok(p)
 }
 
+/// A model: ours (`.safetensors`, plain or quantized), or SVRaster's `.pt` (imported with
+/// a black background and ss 1.5; `svraster import` chooses them).
 pub fn load_model(model: &Path) -> anyhow::Result<Scene> {
     let p = model_path(model)?;
+    if svraster::scene::svraster::is_torch_checkpoint(&p) {
+        eprintln!(
+            "{}: an SVRaster checkpoint, read with a black background and ss 1.5 (`svraster \
+             import --background white|black|R,G,B --ss S` to choose)",
+            p.display()
+        );
+        return Ok(svraster::scene::svraster::import_svraster(
+            &p,
+            &svraster::scene::svraster::SvrasterImport::default(),
+        )?);
+    }
     Ok(checkpoint::load(&p)?)
 }
 

@@ -7,6 +7,7 @@ mod bench_sort;
 mod demo;
 mod export;
 mod field;
+mod import;
 mod info;
 mod inputs;
 mod mesh;
@@ -449,6 +450,27 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Convert a model trained by SVRaster (NVlabs/svraster: MODEL_DIR/checkpoints/
+    /// iterNNNNNN_model.pt, plain or quantized) into a checkpoint of ours: the same
+    /// voxels, grid-point densities and SH, copied. `render`, `eval`, `mesh`, `export`
+    /// and `view` also read the .pt directly, with the defaults below.
+    Import {
+        /// SVRaster's checkpoint (`torch.save` of its SVInOut.save; read without PyTorch).
+        checkpoint: PathBuf,
+        /// The model to write (.safetensors, atomically).
+        #[arg(long)]
+        out: PathBuf,
+        /// The background, which SVRaster's checkpoint does not record: white
+        /// (NeRF-synthetic, `white_background`), black (DTU, and the default) or R,G,B.
+        #[arg(long, default_value = "black", value_parser = import::parse_background)]
+        background: [f32; 3],
+        /// The supersampling it was trained with (SVRaster's `ss`; renders use it).
+        #[arg(long, default_value_t = 1.5)]
+        ss: f32,
+        /// Print a JSON summary instead of the line.
+        #[arg(long)]
+        json: bool,
+    },
     /// Look at a model in a window: orbit/fly, the training cameras as frusta to jump
     /// between (`]` `[`), colour/depth/normal (M), SH degree (H), samples (K), frame
     /// time on screen; --screenshot for headless use.
@@ -488,6 +510,13 @@ pub fn run() -> anyhow::Result<()> {
             out,
             json,
         } => export::run(&model, format, &out, json)?,
+        Command::Import {
+            checkpoint,
+            out,
+            background,
+            ss,
+            json,
+        } => import::run(&checkpoint, &out, background, ss, json)?,
         Command::Demo {
             out,
             size,

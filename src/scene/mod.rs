@@ -15,6 +15,7 @@
 pub mod checkpoint;
 mod device;
 pub mod quantize;
+pub mod svraster;
 pub use device::SceneGpu;
 pub(crate) use device::{download_shs, upload_shs};
 

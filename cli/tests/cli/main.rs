@@ -192,5 +192,6 @@ mod demo_render_train;
 mod export_bench;
 mod features;
 mod field;
+mod import;
 mod resume_signals;
 mod view;

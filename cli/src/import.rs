@@ -1,0 +1,94 @@
+//! `svraster import`: a model trained by the reference implementation (SVRaster's
+//! `iterNNNNNN_model.pt`, plain or quantized) as a checkpoint of ours, for `render`,
+//! `eval`, `mesh`, `export`, `view` and host embedding.
+
+use std::path::Path;
+
+use anyhow::{bail, Context as _};
+use svraster::scene::checkpoint;
+use svraster::scene::svraster::{import_svraster, SvrasterImport};
+
+/// `--background`: `white`, `black` or `R,G,B` (display values in 0..1).
+pub fn parse_background(s: &str) -> Result<[f32; 3], String> {
+    match s {
+        "white" => Ok([1.0; 3]),
+        "black" => Ok([0.0; 3]),
+        _ => {
+            let v: Vec<f32> = s
+                .split(',')
+                .map(|x| x.trim().parse::<f32>())
+                .collect::<Result<_, _>>()
+                .map_err(|_| format!("`{s}`: expected white, black or R,G,B in 0..1"))?;
+            if v.len() != 3 || v.iter().any(|c| !(0.0..=1.0).contains(c)) {
+                return Err(format!("`{s}`: expected white, black or R,G,B in 0..1"));
+            }
+            Ok([v[0], v[1], v[2]])
+        }
+    }
+}
+
+pub fn run(
+    ckpt: &Path,
+    out: &Path,
+    background: [f32; 3],
+    ss: f32,
+    json: bool,
+) -> anyhow::Result<()> {
+    if !ckpt.is_file() {
+        bail!(
+            "{}: not found; pass an SVRaster checkpoint (MODEL_DIR/checkpoints/iterNNNNNN_model.pt)",
+            ckpt.display()
+        );
+    }
+    if !(1.0..=4.0).contains(&ss) {
+        bail!("--ss {ss}: the supersampling must be 1 to 4 (SVRaster's default is 1.5)");
+    }
+    if out.extension().and_then(|e| e.to_str()) != Some("safetensors") {
+        bail!(
+            "--out {}: the model is written as .safetensors; name it *.safetensors",
+            out.display()
+        );
+    }
+    if super::inputs::resolved(out) == super::inputs::resolved(ckpt) {
+        bail!("--out {} is the checkpoint being imported", out.display());
+    }
+    let scene = import_svraster(
+        ckpt,
+        &SvrasterImport {
+            background,
+            supersample: ss,
+        },
+    )?;
+    checkpoint::save(&scene, out).with_context(|| format!("cannot write {}", out.display()))?;
+    let bytes = std::fs::metadata(out).map(|m| m.len()).unwrap_or(0);
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({
+                "model": out,
+                "voxels": scene.num_voxels(),
+                "grid_points": scene.num_grid_points(),
+                "max_level": scene.max_level(),
+                "sh_degree": scene.sh_degree,
+                "background": scene.background,
+                "supersample": scene.supersample,
+                "bytes": bytes,
+            })
+        );
+    } else {
+        println!(
+            "imported {}: {} voxels (levels up to {}), {} grid points, SH degree {}, \
+             background {:?}, ss {} → {} ({:.1} MiB)",
+            ckpt.display(),
+            scene.num_voxels(),
+            scene.max_level(),
+            scene.num_grid_points(),
+            scene.sh_degree,
+            scene.background,
+            scene.supersample,
+            out.display(),
+            bytes as f64 / (1 << 20) as f64
+        );
+    }
+    Ok(())
+}
