@@ -37,6 +37,10 @@ pub enum Error {
     Invalid(String),
     #[error("GPU reported an internal error: {0}")]
     Gpu(String),
+    /// The windowed viewer (feature `viewer`): no window system, no device that can
+    /// present, a failed swapchain or screenshot.
+    #[error("viewer: {0}")]
+    Viewer(String),
     #[error("{0} validation message(s) were reported (see stderr)")]
     Validation(u64),
     /// (The I/O error is part of the message, not a `source`, so `{:#}` chains do not

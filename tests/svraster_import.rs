@@ -107,7 +107,7 @@ fn svraster_checkpoints_import_exactly() {
     let model = dump(&scene, &dir.path().join("d3"));
     let pt = dir.path().join("iter000300_model.pt");
     write_checkpoint(py, &model, &pt, &[]);
-    assert!(is_torch_checkpoint(&pt));
+    assert!(is_torch_checkpoint(&pt) && !is_torch_checkpoint(&model));
     let got = import_svraster(&pt, &opts).unwrap();
     assert_eq!(
         (got.sh_degree, got.background, got.supersample),

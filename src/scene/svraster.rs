@@ -46,15 +46,18 @@ impl Default for SvrasterImport {
     }
 }
 
-/// Whether `path` looks like a PyTorch checkpoint (a ZIP archive holding `data.pkl`, or
-/// a legacy pickle), as opposed to a safetensors model.
+/// Whether `path` looks like a PyTorch checkpoint — a ZIP archive (`torch.save` since
+/// 1.6) or a legacy file (a protocol-2 pickle opening with PyTorch's magic number) — as
+/// opposed to a safetensors model, whose first 8 bytes are its header's length (neither
+/// opening is a plausible length: ≥ 64 MiB of header).
 pub fn is_torch_checkpoint(path: &Path) -> bool {
+    const LEGACY: [u8; 8] = [0x80, 0x02, 0x8a, 0x0a, 0x6c, 0xfc, 0x9c, 0x46];
     let Ok(mut f) = std::fs::File::open(path) else {
         return false;
     };
-    let mut head = [0u8; 4];
+    let mut head = [0u8; 8];
     use std::io::Read;
-    f.read_exact(&mut head).is_ok() && (head == *b"PK\x03\x04" || head[0] == 0x80)
+    f.read_exact(&mut head).is_ok() && (head[..4] == *b"PK\x03\x04" || head == LEGACY)
 }
 
 struct Reader<'a> {

@@ -144,7 +144,7 @@ pub fn run(scene: &Scene, opts: ViewerOptions) -> Result<ViewerReport> {
         ));
     }
     let event_loop = EventLoop::new().map_err(|e| {
-        Error::NoDevice(format!(
+        Error::Viewer(format!(
             "no window system ({e}): run under a display, or headless under a virtual one \
              (`xvfb-run -a svraster view … --screenshot out.png`)"
         ))
@@ -169,11 +169,11 @@ pub fn run(scene: &Scene, opts: ViewerOptions) -> Result<ViewerReport> {
     };
     event_loop
         .run_app(&mut app)
-        .map_err(|e| Error::Gpu(format!("event loop: {e}")))?;
+        .map_err(|e| Error::Viewer(format!("event loop: {e}")))?;
     let gpu = app.gpu.take();
     drop(gpu);
     if let Some(e) = app.error {
-        return Err(Error::Gpu(e));
+        return Err(Error::Viewer(e));
     }
     app.report.frames = app.frame;
     app.report.median_frame_ms = median(&app.frame_ms);

@@ -6,15 +6,24 @@ use super::*;
 fn speed_presets_modify_any_preset() {
     let p = |n: &str| TrainConfig::preset(n).unwrap();
     let (syn, fwd) = (p("synthetic"), p("forward"));
+    // The synthetic preset subdivides down to rate 1 (SVRaster's synthetic config); the
+    // speed modifiers keep the measured rate-2 guard.
+    assert_eq!(syn.subdivide_min_rate, 1.0);
+    assert_eq!(p("quick").subdivide_min_rate, 2.0);
     let ft = p("synthetic-fast-train");
     assert_eq!(
-        (ft.ss, ft.grid_level, ft.sh_degree),
-        (1.0, syn.grid_level - 1, 3)
+        (ft.ss, ft.grid_level, ft.sh_degree, ft.subdivide_min_rate),
+        (1.0, syn.grid_level - 1, 3, 2.0)
     );
     let fr = p("synthetic-fast-render");
     assert_eq!(
-        (fr.ss, fr.prune_thres_final, fr.grid_level),
-        (1.0, 0.15, syn.grid_level)
+        (
+            fr.ss,
+            fr.prune_thres_final,
+            fr.grid_level,
+            fr.subdivide_min_rate
+        ),
+        (1.0, 0.15, syn.grid_level, 2.0)
     );
     let ft = p("forward-fast-train");
     assert_eq!(
