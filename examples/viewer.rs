@@ -16,8 +16,7 @@ use std::path::PathBuf;
 use clap::Parser;
 use glam::DVec3;
 use svraster::scene::Scene;
-use svraster::viewer::{ViewMode, ViewerOptions};
-use svraster::Camera;
+use svraster::viewer::{horizontal_axes, orbit_view, ViewMode, ViewerOptions};
 
 #[derive(Parser, Debug, Clone)]
 #[command(about = "Windowed host engine embedding a trained sparse-voxel model")]
@@ -61,19 +60,12 @@ struct Args {
 /// The host's clear colour (linear).
 const CLEAR: [f32; 3] = [0.013, 0.015, 0.022];
 
-/// Two horizontal axes for `up`.
-fn horizontal(up: DVec3) -> (DVec3, DVec3) {
-    let a = if up.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
-    let e1 = (a - up * a.dot(up)).normalize();
-    (e1, up.cross(e1))
-}
-
 /// The host's own geometry: a ground grid below the model and a cube beside its centre
 /// (6 floats per vertex: position, colour).
 fn host_mesh(scene: &Scene, up: DVec3) -> Vec<f32> {
     let c = DVec3::from(scene.center.map(f64::from));
     let e = f64::from(scene.extent);
-    let (e1, e2) = horizontal(up);
+    let (e1, e2) = horizontal_axes(up);
     let mut v = vec![];
     let mut quad = |p: [DVec3; 4], col: [f32; 3]| {
         for i in [0, 1, 2, 0, 2, 3] {
@@ -136,24 +128,15 @@ fn main() {
         "-y" => DVec3::NEG_Y,
         _ => DVec3::Z,
     };
-    // The start: orbit angles around the centre, a 50° vertical field of view.
-    let centre = DVec3::from(scene.center.map(f64::from));
-    let e = f64::from(scene.extent);
-    let (e1, e2) = horizontal(up);
-    let (a, el) = (args.azimuth.to_radians(), args.elevation.to_radians());
-    let eye =
-        centre + args.distance * e * (el.cos() * (a.cos() * e1 + a.sin() * e2) + el.sin() * up);
-    let aspect = f64::from(args.width) / f64::from(args.height.max(1));
-    let fov_x = 2.0 * (25f64.to_radians().tan() * aspect).atan();
-    let mut start = Camera::look_at(
-        eye.into(),
-        centre.into(),
+    let start = orbit_view(
+        &scene,
         up.into(),
-        fov_x,
-        args.width.max(1),
-        args.height.max(1),
+        args.azimuth,
+        args.elevation,
+        args.distance,
+        args.width,
+        args.height,
     );
-    start.near = 0.01 * e;
     let opts = ViewerOptions {
         title: "svraster viewer (host-engine demo)".into(),
         width: args.width,
@@ -178,17 +161,7 @@ fn main() {
     match svraster::viewer::run(&scene, opts) {
         Ok(r) => {
             if let Some(p) = &args.screenshot {
-                println!(
-                    "{} frames of {}×{} on {}: median frame {:.1} ms, median field {:.1} ms \
-                     (GPU timestamps); screenshot {}",
-                    r.frames,
-                    r.width,
-                    r.height,
-                    r.device,
-                    r.median_frame_ms,
-                    r.median_field_ms,
-                    p.display()
-                );
+                println!("{r}; screenshot {}", p.display());
             }
             if r.validation_messages > 0 {
                 eprintln!("error: {} validation messages", r.validation_messages);

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context as _};
 use glam::DVec3;
 use svraster::data;
-use svraster::viewer::{frusta_lines, ViewMode, ViewerOptions};
+use svraster::viewer::{frusta_lines, orbit_view, ViewMode, ViewerOptions};
 use svraster::Camera;
 
 use super::inputs::load_model;
@@ -173,18 +173,8 @@ pub fn run(a: ViewArgs, validation: bool) -> anyhow::Result<()> {
     let start = match start_cam {
         Some(c) => c.clone(),
         None => {
-            // An orbit view: 30° around, 25° up, 1.6 extents away, 50° vertical fov.
-            let a1 = if up.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
-            let e1 = (a1 - up * a1.dot(up)).normalize();
-            let e2 = up.cross(e1);
-            let (az, el) = (30f64.to_radians(), 25f64.to_radians());
-            let eye = centre
-                + 1.6 * extent * (el.cos() * (az.cos() * e1 + az.sin() * e2) + el.sin() * up);
-            let fov_x = 2.0 * (25f64.to_radians().tan() * size.0 as f64 / size.1 as f64).atan();
-            let mut c =
-                Camera::look_at(eye.into(), centre.into(), up.into(), fov_x, size.0, size.1);
-            c.near = 0.01 * extent;
-            c
+            // An orbit view: 30° around, 25° up, 1.6 extents away.
+            orbit_view(&scene, up.into(), 30.0, 25.0, 1.6, size.0, size.1)
         }
     };
     // Frusta a twentieth of the cameras' mean distance to the centre deep.
@@ -239,17 +229,7 @@ pub fn run(a: ViewArgs, validation: bool) -> anyhow::Result<()> {
                 })
             );
         } else {
-            println!(
-                "{} frames of {}×{} on {}: median frame {:.1} ms, field {:.1} ms (GPU \
-                 timestamps); screenshot {}",
-                r.frames,
-                r.width,
-                r.height,
-                r.device,
-                r.median_frame_ms,
-                r.median_field_ms,
-                p.display()
-            );
+            println!("{r}; screenshot {}", p.display());
         }
     }
     if r.validation_messages > 0 {

@@ -117,7 +117,8 @@ pub struct ViewerOptions {
     pub hud: bool,
 }
 
-/// What a viewer session measured.
+/// What a viewer session measured (displayed as one line: frames, size, device, median
+/// frame and field times).
 #[derive(Clone, Debug, Default)]
 pub struct ViewerReport {
     pub frames: u64,
@@ -129,6 +130,21 @@ pub struct ViewerReport {
     pub median_field_ms: f64,
     pub device: String,
     pub validation_messages: u64,
+}
+
+impl std::fmt::Display for ViewerReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} frames of {}×{} on {}: median frame {:.1} ms, field {:.1} ms (GPU timestamps)",
+            self.frames,
+            self.width,
+            self.height,
+            self.device,
+            self.median_frame_ms,
+            self.median_field_ms
+        )
+    }
 }
 
 /// Opens the window and runs until it is closed (or, with a screenshot, until it is
@@ -311,6 +327,39 @@ impl Nav {
             (d + 0.5 * self.extent).max(1e-3) as f32,
         )
     }
+}
+
+/// Two horizontal unit axes (orthogonal to `up` and to each other).
+pub fn horizontal_axes(up: DVec3) -> (DVec3, DVec3) {
+    let a = if up.x.abs() < 0.9 { DVec3::X } else { DVec3::Y };
+    let e1 = (a - up * a.dot(up)).normalize();
+    (e1, up.cross(e1))
+}
+
+/// A view of the model from outside: `azimuth` and `elevation` (degrees) about `up`
+/// around the scene's centre, `distance` extents away, a 50° vertical field of view at
+/// `width` × `height`, the near plane at a hundredth of the extent.
+pub fn orbit_view(
+    scene: &Scene,
+    up: [f64; 3],
+    azimuth: f64,
+    elevation: f64,
+    distance: f64,
+    width: u32,
+    height: u32,
+) -> Camera {
+    let up = DVec3::from(up).normalize_or(DVec3::Z);
+    let centre = DVec3::from(scene.center.map(f64::from));
+    let extent = f64::from(scene.extent);
+    let (e1, e2) = horizontal_axes(up);
+    let (a, el) = (azimuth.to_radians(), elevation.to_radians());
+    let eye =
+        centre + distance * extent * (el.cos() * (a.cos() * e1 + a.sin() * e2) + el.sin() * up);
+    let (w, h) = (width.max(1), height.max(1));
+    let fov_x = 2.0 * (25f64.to_radians().tan() * f64::from(w) / f64::from(h)).atan();
+    let mut c = Camera::look_at(eye.into(), centre.into(), up.into(), fov_x, w, h);
+    c.near = 0.01 * extent;
+    c
 }
 
 /// Frusta of `cams` as a line list (6 floats per vertex): apex to the four corners of
