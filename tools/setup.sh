@@ -10,7 +10,8 @@
 #    archives build.rs links (see .cargo/config.toml)
 #  - vulkan-tools: vulkaninfo, handy for diagnosing a driver
 #  - python3-numpy: tools/ply_read.py, the independent PLY reader the mesh tests check
-#    our PLY output with
+#    our PLY output with; python3 alone: tools/svraster_checkpoint.py, which writes the
+#    SVRaster checkpoints the import tests read
 #  - ffmpeg: `render --path … --out X.mp4` encodes with it (and ffprobe reads the video
 #    back in cli/tests/cli/features.rs)
 #  - xvfb xauth and the X11 client libraries winit opens at run time (libx11-6 libx11-xcb1
