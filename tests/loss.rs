@@ -59,6 +59,7 @@ fn pixel_losses_match_the_f64_reference() {
         r.set_outputs(FrameOutputs {
             normals: true,
             distortion: true,
+            distortion_contracted: false,
         });
         let opts = RenderOptions {
             samples: 1,
@@ -172,6 +173,8 @@ fn pixel_losses_match_the_f64_reference() {
                 &LossSpec {
                     lambda_dist: 1.0,
                     lambda_r: 0.0,
+                    lambda_r_colour: 0.0,
+                    dist_contracted: false,
                 },
                 None,
             );

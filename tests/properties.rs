@@ -326,11 +326,15 @@ fn gradients_match_the_reference_on_drawn_scenes() {
             LossSpec {
                 lambda_dist: 0.0,
                 lambda_r: 0.0,
+                lambda_r_colour: 0.0,
+                dist_contracted: false,
             }
         } else {
             LossSpec {
                 lambda_dist: rng.range(0.1, 2.0),
                 lambda_r: rng.range(0.1, 2.0),
+                lambda_r_colour: 0.0,
+                dist_contracted: false,
             }
         };
         {

@@ -131,6 +131,26 @@ fn camera_outside_near(rng: &mut Rng, scene: &Scene, w: u32, h: u32) -> Camera {
     Camera::look_at(eye, target, rng.dir(), rng.range(0.6, 1.2), w, h)
 }
 
+/// As `camera_outside_near` (the same random draws), moved back along the same direction
+/// to distance 1 from the scene's centre, with the field of view narrowed to frame the
+/// scene alike: its hits straddle ray distance 1, where SVRaster's contracted distortion
+/// axis bends.
+fn camera_at_distance_one(rng: &mut Rng, scene: &Scene, w: u32, h: u32) -> Camera {
+    let c = scene.center.map(|v| v as f64);
+    let e = scene.extent as f64;
+    let d = rng.dir();
+    let r = e * rng.range(1.2, 2.0);
+    let eye = [c[0] + d[0], c[1] + d[1], c[2] + d[2]];
+    let target = [
+        c[0] + e * rng.range(-0.1, 0.1),
+        c[1] + e * rng.range(-0.1, 0.1),
+        c[2] + e * rng.range(-0.1, 0.1),
+    ];
+    let up = rng.dir();
+    let fov = 2.0 * ((0.5 * rng.range(0.6, 1.2)).tan() * r).atan();
+    Camera::look_at(eye, target, up, fov, w, h)
+}
+
 fn random_weights(rng: &mut Rng, n: usize) -> Vec<PixelWeights> {
     (0..n)
         .map(|_| PixelWeights {
@@ -155,6 +175,8 @@ fn random_spec(rng: &mut Rng) -> LossSpec {
     LossSpec {
         lambda_dist: rng.range(0.2, 2.0),
         lambda_r: rng.range(0.2, 2.0),
+        lambda_r_colour: 0.0,
+        dist_contracted: false,
     }
 }
 
@@ -182,6 +204,8 @@ fn only_term(pix: &[PixelWeights], spec: &LossSpec, t: usize) -> (Vec<PixelWeigh
         } else {
             0.0
         },
+        lambda_r_colour: 0.0,
+        dist_contracted: spec.dist_contracted,
     };
     (pix, spec)
 }
@@ -209,15 +233,24 @@ fn cases(seed: u64) -> Vec<Case> {
                 let scene = grad_scene(&mut rng, degree);
                 let cam = if inside {
                     camera_inside(&mut rng, &scene, W, H)
+                } else if k == 2 {
+                    camera_at_distance_one(&mut rng, &scene, W, H)
                 } else {
                     camera_outside_near(&mut rng, &scene, W, H)
                 };
                 let pix = random_weights(&mut rng, (W * H) as usize);
-                let spec = random_spec(&mut rng);
+                let mut spec = random_spec(&mut rng);
+                // SVRaster's contracted distortion axis in the K = 2 cases.
+                spec.dist_contracted = k == 2;
                 out.push(Case {
                     name: format!(
-                        "degree {degree} K={k} {} ({} voxels)",
+                        "degree {degree} K={k} {}{} ({} voxels)",
                         if inside { "inside" } else { "outside" },
+                        if k == 2 {
+                            ", contracted distortion"
+                        } else {
+                            ""
+                        },
                         scene.num_voxels()
                     ),
                     scene,
@@ -263,12 +296,21 @@ fn forward_matches_reference_renderer() {
             let o = c.cam.origin();
             for (i, ci) in cs.iter().enumerate() {
                 let wi = ci.t * ci.alpha;
-                let mi = 0.5 * (ci.a + ci.b);
+                // The pairwise form on the distortion's axis: the ray distance, or
+                // SVRaster's contraction x < 1 ? x : 2 − 1/x written out here.
+                let axis = |x: f64| {
+                    if c.spec.dist_contracted && x >= 1.0 {
+                        2.0 - 1.0 / x
+                    } else {
+                        x
+                    }
+                };
+                let mi = 0.5 * (axis(ci.a) + axis(ci.b));
                 for cj in cs {
-                    let mj = 0.5 * (cj.a + cj.b);
+                    let mj = 0.5 * (axis(cj.a) + axis(cj.b));
                     want_dist += wi * cj.t * cj.alpha * (mi - mj).abs();
                 }
-                want_dist += wi * wi * (ci.b - ci.a) / 3.0;
+                want_dist += wi * wi * (axis(ci.b) - axis(ci.a)) / 3.0;
                 let rgb = voxel_rgb(&c.scene, ci.voxel, o);
                 want_r += wi * (0..3).map(|ch| (rgb[ch] - w.gt[ch]).powi(2)).sum::<f64>() / 3.0;
                 // Entries are in order of entry distance with disjoint segments.
@@ -531,6 +573,77 @@ fn gradients_match_finite_differences() {
     }
 }
 
+/// SVRaster's colour-only per-point RGB term (λ_c·Σ w |c − gt|², w held constant): its
+/// reference gradient on the colours is the central difference, on the SH, of the
+/// per-point RGB term's value with λ_R = 3λ_c (same sum, /3 in ours; w does not depend
+/// on the SH), and it reaches neither the densities nor the priority.
+#[test]
+fn colour_only_point_rgb_matches_finite_differences_on_the_colours() {
+    let lc = 0.7;
+    let (mut worst, mut nonzero) = (0.0f64, 0usize);
+    for c in cases(17).into_iter().step_by(3) {
+        let params = Params::of(&c.scene);
+        let rays = pixel_rays(&c.scene, &c.cam);
+        let (pix, _) = only_term(&c.pix, &c.spec, TERM_POINT_RGB);
+        let colour_only = LossSpec {
+            lambda_dist: 0.0,
+            lambda_r: 0.0,
+            lambda_r_colour: lc,
+            dist_contracted: false,
+        };
+        let an = grads_with(&c.scene, &params, &rays, c.k, &pix, &colour_only);
+        assert!(
+            an.geo.iter().chain(&an.priority).all(|&g| g == 0.0),
+            "{}: the colour-only term reached a density or the priority",
+            c.name
+        );
+        let full = Case {
+            name: c.name.clone(),
+            scene: c.scene.clone(),
+            cam: c.cam.clone(),
+            k: c.k,
+            pix,
+            spec: LossSpec {
+                lambda_dist: 0.0,
+                lambda_r: 3.0 * lc,
+                lambda_r_colour: 0.0,
+                dist_contracted: false,
+            },
+        };
+        let base = evaluate(
+            &full.scene,
+            &params,
+            &rays,
+            full.k,
+            &full.pix,
+            &full.spec,
+            None,
+        );
+        for kind in [Kind::Sh0, Kind::Shs] {
+            let fds: Vec<(usize, f64)> = (0..param_count(&params, kind))
+                .filter_map(|j| {
+                    fd_terms(&params, &rays, &full, &base.signature, kind, j)
+                        .map(|fd| (j, fd[TERM_POINT_RGB]))
+                })
+                .collect();
+            let gmax = fds.iter().map(|f| f.1.abs()).fold(0.0, f64::max);
+            for (j, fd) in fds {
+                let a = grad_of(&an, kind, j);
+                let e = (a - fd).abs() / (fd.abs() + 1e-3 * gmax + 1e-9);
+                assert!(
+                    e <= GRAD_TOL,
+                    "{}: {kind:?}[{j}]: analytic {a:e} vs fd {fd:e} (rel err {e:e})",
+                    c.name
+                );
+                worst = worst.max(e);
+                nonzero += usize::from(fd.abs() > 1e-3 * gmax && fd.abs() > 1e-6);
+            }
+        }
+    }
+    println!("colour-only point RGB: max rel error {worst:.2e}, {nonzero} non-zero SH gradients");
+    assert!(nonzero > 100, "too few SH gradients checked ({nonzero})");
+}
+
 /// priority[v] = Σ |α·∂L/∂α| over v's contributing entries, with ∂L/∂α by central
 /// differences on the alpha value itself (AlphaNudge), for K = 1, 2, 3.
 #[test]
@@ -610,15 +723,21 @@ fn priority_matches_alpha_finite_differences() {
 #[test]
 fn cases_exercise_every_branch() {
     // [skipped hits, alpha-clamped, early stops, clamped colour channels,
-    //  explin-linear samples, local-alpha-clamped samples (K > 1), near-clipped hits]
-    let mut total = [0usize; 7];
+    //  explin-linear samples, local-alpha-clamped samples (K > 1), near-clipped hits,
+    //  contracted-distortion hits ending before distance 1, and ending beyond it]
+    let mut total = [0usize; 9];
     for c in cases(7) {
         let rays = pixel_rays(&c.scene, &c.cam);
         let params = Params::of(&c.scene);
         let ev = evaluate(&c.scene, &params, &rays, c.k, &c.pix, &c.spec, None);
         let hits: usize = rays.iter().map(|r| r.hits.len()).sum();
         let contrib: usize = ev.contributors.iter().map(|v| v.len()).sum();
-        let mut n = [0usize; 7];
+        let mut n = [0usize; 9];
+        if c.spec.dist_contracted {
+            for h in rays.iter().flat_map(|r| &r.hits) {
+                n[if h.1 < 1.0 { 7 } else { 8 }] += 1;
+            }
+        }
         n[6] = rays
             .iter()
             .flat_map(|r| r.hits.iter().map(move |h| h.0 == c.cam.near * r.norm))
@@ -644,14 +763,14 @@ fn cases_exercise_every_branch() {
             }
         }
         println!(
-            "{}: levels {:?}, {hits} hits, {contrib} contributors; skipped {}, alpha-clamped {}, early stops {}, clamped colour channels {}, explin-linear samples {}, clamped local alphas {}, near-clipped {}",
+            "{}: levels {:?}, {hits} hits, {contrib} contributors; skipped {}, alpha-clamped {}, early stops {}, clamped colour channels {}, explin-linear samples {}, clamped local alphas {}, near-clipped {}, contracted before / beyond 1: {} / {}",
             c.name,
             (1..=3)
                 .map(|l| c.scene.octlevel.iter().filter(|&&v| v == l).count())
                 .collect::<Vec<_>>(),
-            n[0], n[1], n[2], n[3], n[4], n[5], n[6]
+            n[0], n[1], n[2], n[3], n[4], n[5], n[6], n[7], n[8]
         );
-        for j in 0..7 {
+        for j in 0..9 {
             total[j] += n[j];
         }
     }

@@ -11,7 +11,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) buffer BackParams 
     uint chunks;        // chunks recorded
     uint chunk_size;    // entries per chunk
     uint voxels;
-    uint pad0;
+    float lambda_r_colour; // SVRaster's per-point RGB term: colour gradient 2λ·w·(c − gt) only
     uvec2 out_size;     // width, height of the output image
     uvec2 render_size;  // width, height of the rendered image
     F32s dimg;    // per render pixel, planar DI_CHANNELS: loss gradients and ground truth

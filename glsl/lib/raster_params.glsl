@@ -177,8 +177,10 @@ float host_t_far(FrameParams P, uvec2 pix, float rd_norm) {
 // any subgroup size (tests). NORMALS: the composite accumulates the normal image (else
 // it stays 0) and the backward propagates its gradient. DISTORTION: the composite
 // accumulates the distortion sums (AUX_M, AUX_DIST; else 0), which the distortion loss
-// and its gradient need.
-const uint FRAME_GENERIC_WALK = 1u, FRAME_NORMALS = 2u, FRAME_DISTORTION = 4u;
+// and its gradient need. DIST_CONTRACT: those sums are taken on SVRaster's contracted
+// axis (dist_axis below) instead of the ray parameter t.
+const uint FRAME_GENERIC_WALK = 1u, FRAME_NORMALS = 2u, FRAME_DISTORTION = 4u,
+           FRAME_DIST_CONTRACT = 8u;
 
 // Whether the frame accumulates normals / distortion sums (uniform branches). The
 // NO_NORMALS kernel variants (build.rs), which the host picks for frames without
@@ -193,6 +195,15 @@ bool frame_normals(FrameParams P) {
 }
 bool frame_distortion(FrameParams P) {
     return (P.flags & FRAME_DISTORTION) != 0u;
+}
+
+// The distortion loss's axis at ray distance t (pixel_ray's rd is a unit vector; uniform
+// branch): t itself, or with FRAME_DIST_CONTRACT SVRaster's `depth_contracted`
+// (cuda/src/auxiliary.h): t < 1 ? t : 2 − 1/t, so everything beyond distance 1 lies in
+// [1, 2).
+float dist_axis(FrameParams P, float t) {
+    if ((P.flags & FRAME_DIST_CONTRACT) == 0u) return t;
+    return t < 1.0 ? t : 2.0 - 1.0 / t;
 }
 
 // Pixel `l` (0..255) of a 16x16 tile in Morton order: 2^n consecutive ones form a

@@ -192,8 +192,9 @@ uint px_step(FrameParams P, inout Px s, Entry e, uint idx, bool need, bool track
 #endif
             // Only what the frame's consumers read (FrameParams.flags; uniform).
             if (frame_distortion(P)) {
-                float mid = 0.5 * (a + b);
-                s.dist_l += wt * (2.0 * (mid * (1.0 - T) - s.dist_m) + wt * (b - a) * (1.0 / 3.0));
+                float da = dist_axis(P, a), db = dist_axis(P, b);
+                float mid = 0.5 * (da + db);
+                s.dist_l += wt * (2.0 * (mid * (1.0 - T) - s.dist_m) + wt * (db - da) * (1.0 / 3.0));
                 s.dist_m += wt * mid;
             }
             s.last = idx + 1u;

@@ -11,6 +11,8 @@
 // without dividing a suffix sum by (1 - α_k); T_k = T_{k+1} / (1 - α_k) is exact enough
 // because α ≤ 0.99999 and the forward stopped at T < 1e-4. r_k is the per-point RGB loss
 // λ_R·|c_k - gt|²/3; u_k = ∂L_dist/∂w_k uses W_k = 1 - T_k and the forward's Σ w·m.
+// SVRaster's form of the per-point RGB loss (λ_Rc·Σ w_k |c_k - gt|² with w_k held
+// constant) adds 2 λ_Rc w_k (c_k - gt) to the colour gradient and nothing to φ.
 //
 // Each invocation handles two pixels (tile_walk.glsl's walk_pixel); each subgroup visits
 // only the staged entries that can matter to its pixels (rectangle, sign octant, before
@@ -253,13 +255,14 @@ uint bpx_step(inout BPx s, Entry e, uint idx, bool need, inout float red[16]) {
     float Tk = idx + 1u == s.last ? s.t_last : s.T / (1.0 - alpha);
     float w = Tk * alpha;
     float mid = 0.5 * (a + b);
-    float delta = b - a;
-    float u = 0.0;
+    float u = 0.0, dmid = 0.0;
     if (distortion) {
-        // ∂L_dist/∂w_k (segments are constants).
+        // ∂L_dist/∂w_k (segments are constants), on the composite's distortion axis.
+        float da = dist_axis(pc.frame, a), db = dist_axis(pc.frame, b);
+        dmid = 0.5 * (da + db);
         float Wk = 1.0 - Tk;
-        float Mk = s.mtot - s.ma - w * mid;
-        u = lam_dist * (2.0 * (mid * Wk - Mk) + 2.0 * (s.ma - mid * s.wa) + (2.0 / 3.0) * w * delta);
+        float Mk = s.mtot - s.ma - w * dmid;
+        u = lam_dist * (2.0 * (dmid * Wk - Mk) + 2.0 * (s.ma - dmid * s.wa) + (2.0 / 3.0) * w * (db - da));
     }
     vec3 diff = col - s.gt;
     float r = lam_r * dot(diff, diff) * (1.0 / 3.0);
@@ -305,7 +308,7 @@ uint bpx_step(inout BPx s, Entry e, uint idx, bool need, inout float red[16]) {
             red[VG_GEO + c] += coef * wt;
         }
     }
-    vec3 d_rgb = w * s.dC + (w * lam_r * (2.0 / 3.0)) * diff;
+    vec3 d_rgb = w * s.dC + (w * (lam_r * (2.0 / 3.0) + 2.0 * pc.back.lambda_r_colour)) * diff;
     for (uint c = 0u; c < 3u; ++c) red[VG_RGB + c] += d_rgb[c];
     if (normals) {
         vec3 d_nrm = w * s.dN;
@@ -314,7 +317,7 @@ uint bpx_step(inout BPx s, Entry e, uint idx, bool need, inout float red[16]) {
     s.A = phi + (1.0 - alpha) * s.A;
     if (distortion) {
         s.wa += w;
-        s.ma += w * mid;
+        s.ma += w * dmid;
     }
     s.T = Tk;
     return work;

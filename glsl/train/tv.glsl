@@ -2,6 +2,10 @@
 // float atomic adds, and train/tv_cas, with compare-and-swap adds: build.rs's table). Thread per voxel v with corners corners[8v + c] (c = x<<2|y<<1|z):
 //   L_v = Σ over the 12 cube edges (a, b) of (geo[a] − geo[b])²
 //   grad[corner c] += weight · ∂L_v/∂geo[c] = weight · 2 Σ_{k<3} (geo[c] − geo[c ^ 1<<k])
+// FORM 1 (SVRaster's, cuda/src/tv_compute.cu with no_tv_s): L1 on the same edges,
+//   L_v = Σ |geo[a] − geo[b]|,  grad[corner c] += weight · Σ_{k<3} s(geo[c], geo[c ^ 1<<k])
+//   with s(a, b) = +1 if a > b else −1: equal ends give −1 to *both* (SVRaster's
+//   tie rule, so a flat region is pushed up; not the subgradient 0).
 // The adds go through atomic_add_f32 (grid points are shared between voxels). The sum
 // of L_v over each workgroup (weight not applied) goes to partials[group] by a
 // shared-memory tree reduction; the host adds the partials in f64.
@@ -19,6 +23,8 @@ layout(push_constant) uniform Push {
     U32s lost;
     uint voxels;
     float weight;
+    uint form; // 0: L2 (ours), 1: L1 with SVRaster's tie rule
+    uint pad_;
 } pc;
 
 shared float red[256];
@@ -35,20 +41,31 @@ void main() {
             idx[c] = pc.corners.v[8u * vox + c];
             g[c] = pc.geo.v[idx[c]];
         }
-        // d[c] = Σ_k (g[c] − g[c ^ 1<<k]); each edge counted from both of its ends,
-        // so Σ_c over the positive-side ends gives L.
+        // d[c] = Σ_k (g[c] − g[c ^ 1<<k]) (L2) or Σ_k s(g[c], g[c ^ 1<<k]) (L1); each
+        // edge counted from both of its ends, so Σ_c over the bit-clear ends gives L.
+        bool l1 = pc.form == 1u;
         float d[8];
         for (uint c = 0u; c < 8u; ++c) {
             float e0 = g[c] - g[c ^ 4u];
             float e1 = g[c] - g[c ^ 2u];
             float e2 = g[c] - g[c ^ 1u];
-            d[c] = (e0 + e1) + e2;
-            // Count each edge once: from its end with the bit clear.
-            if ((c & 4u) == 0u) L += e0 * e0;
-            if ((c & 2u) == 0u) L += e1 * e1;
-            if ((c & 1u) == 0u) L += e2 * e2;
+            if (l1) {
+                // Integer counts: exact, whatever the evaluation order.
+                int n = (g[c] > g[c ^ 4u] ? 1 : -1) + (g[c] > g[c ^ 2u] ? 1 : -1)
+                    + (g[c] > g[c ^ 1u] ? 1 : -1);
+                d[c] = float(n);
+                // Count each edge once: from its end with the bit clear.
+                if ((c & 4u) == 0u) L += abs(e0);
+                if ((c & 2u) == 0u) L += abs(e1);
+                if ((c & 1u) == 0u) L += abs(e2);
+            } else {
+                d[c] = (e0 + e1) + e2;
+                if ((c & 4u) == 0u) L += e0 * e0;
+                if ((c & 2u) == 0u) L += e1 * e1;
+                if ((c & 1u) == 0u) L += e2 * e2;
+            }
         }
-        float s = 2.0 * pc.weight;
+        float s = l1 ? pc.weight : 2.0 * pc.weight;
 #ifdef DETERMINISTIC
         for (uint c = 0u; c < 8u; ++c) pc.grad.v[8u * vox + c] += s * d[c];
 #else

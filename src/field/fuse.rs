@@ -57,6 +57,7 @@ impl Fuser {
         renderer.set_outputs(FrameOutputs {
             normals: false,
             distortion: false,
+            distortion_contracted: false,
         });
         Ok(Fuser {
             ctx: ctx.clone(),
@@ -175,6 +176,7 @@ impl Fuser {
         let losses = EntryLosses {
             lambda_dist: 0.0,
             lambda_r: 0.0,
+            lambda_r_colour: 0.0,
         };
         ctx.submit_and_wait(|cmd| {
             for pass in 0..planes.div_ceil(3) {

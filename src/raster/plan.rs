@@ -40,6 +40,11 @@ pub struct FrameOutputs {
     /// The per-pixel distortion sums (mip-NeRF 360) that the distortion loss and its
     /// gradient read; the backward refuses a frame without them when λ_dist ≠ 0.
     pub distortion: bool,
+    /// Those sums on SVRaster's contracted axis (`depth_contracted` of the distance
+    /// along the ray: x < 1 ? x : 2 − 1/x) instead of the distance itself: its
+    /// distortion loss, weak beyond distance 1 (docs/PARITY.md item 8). Only with
+    /// `distortion`.
+    pub distortion_contracted: bool,
 }
 
 impl Default for FrameOutputs {
@@ -48,6 +53,7 @@ impl Default for FrameOutputs {
         FrameOutputs {
             normals: true,
             distortion: false,
+            distortion_contracted: false,
         }
     }
 }

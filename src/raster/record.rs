@@ -124,7 +124,8 @@ impl Renderer {
             cam_int: [cam_fine[0].0, cam_fine[1].0, cam_fine[2].0],
             flags: (self.generic_walk as u32 * glsl::FRAME_GENERIC_WALK)
                 | (self.outputs.normals as u32 * glsl::FRAME_NORMALS)
-                | (self.outputs.distortion as u32 * glsl::FRAME_DISTORTION),
+                | (self.outputs.distortion as u32 * glsl::FRAME_DISTORTION)
+                | (self.outputs.distortion_contracted as u32 * glsl::FRAME_DIST_CONTRACT),
             depth_map: self.host.map_or([0.0; 4], |h| h.depth_map),
             octpath: scene.octpath.address(),
             level: scene.level.address(),

@@ -250,8 +250,13 @@ impl Gradients {
 pub struct EntryLosses {
     /// Distortion loss weight.
     pub lambda_dist: f32,
-    /// Per-point RGB loss weight.
+    /// Per-point RGB loss weight (ours: λ·Σ_k w_k |c_k − gt|²/3, differentiated through
+    /// the colours, the opacities and so the priority).
     pub lambda_r: f32,
+    /// Per-point RGB loss weight in SVRaster's form (`backward.cu`, `lambda_R_concen`):
+    /// λ·Σ_k w_k |c_k − gt|² with the blending weights w_k held constant, so its only
+    /// gradient is 2λ·w_k·(c_k − gt) on the colours (no opacity, no priority).
+    pub lambda_r_colour: f32,
 }
 
 /// Mirror of `BackParams` in glsl/lib/backward_params.glsl (checked by `gpu_layout!`).
@@ -263,7 +268,7 @@ struct BackParams {
     chunks: u32,
     chunk_size: u32,
     voxels: u32,
-    pad0: u32,
+    lambda_r_colour: f32,
     out_size: [u32; 2],
     render_size: [u32; 2],
     dimg: u64,

@@ -122,6 +122,11 @@ pub struct TrainConfig {
     /// no floaters for it to remove. `lambda_dist=0.1` is the paper's.
     pub lambda_dist: f32,
     pub dist_from: f64,
+    /// The distortion loss on SVRaster's contracted axis (`depth_contracted`: distance
+    /// x along the ray, x < 1 ? x : 2 − 1/x) instead of the distance itself, as SVRaster
+    /// (docs/PARITY.md item 8): beyond distance 1 its slope is 1/x², so the same λ is
+    /// far weaker on distant content.
+    pub dist_contracted: bool,
     /// Depth–normal consistency with the median depth (paper §3.2.3, the reference's
     /// `lambda_normal_dmed`): mean(1 − N·n_med), n_med the normal of the median-depth
     /// map (glsl/train/normal_loss.comp), from `normal_dmed_from` of the run on (the
@@ -133,9 +138,22 @@ pub struct TrainConfig {
     /// reference: 10 000 of 20 000). 0.001 in the `mesh` preset.
     pub lambda_normal_dmean: f32,
     pub normal_dmean_from: f64,
+    /// Per-point RGB loss (paper Eq. 12, R_concen): λ·mean over render pixels of
+    /// Σ_k w_k |c_k − gt|²/3, differentiated through colours and opacities (so it also
+    /// enters the subdivision priority).
     pub lambda_r: f32,
+    /// The same loss in SVRaster's form (`cuda/src/backward.cu`, `lambda_R_concen`):
+    /// Σ_k w_k |c_k − gt|² (summed over channels) with the weights held constant, so its
+    /// only gradient is 2λ·w_k·(c_k − gt) on the colours. `lambda_r=0
+    /// lambda_r_colour=0.01` is SVRaster's setting (docs/PARITY.md item 5).
+    pub lambda_r_colour: f32,
     pub lambda_tv: f32,
     pub tv_until: f64,
+    /// The TV penalty's form: "l2" (ours: Σ Δ² over the cube edges, zero gradient on
+    /// flat regions) or "l1" (SVRaster's `total_variation_bw`: Σ |Δ|, gradient ±1 per
+    /// edge with equal ends counting −1, so flat regions are pushed up; docs/PARITY.md
+    /// item 6).
+    pub tv_form: TvForm,
     /// How the voxel layout changes during training: "adaptive" (the paper: prune and
     /// subdivide the top `subdivide_percent` by priority), "uniform" (prune the same way,
     /// subdivide every voxel until `max_level`: the paper's Tab. 6 baseline) or "fixed"
@@ -231,13 +249,16 @@ impl Default for TrainConfig {
             lambda_t_inside: 0.0,
             lambda_dist: 0.0,
             dist_from: 0.5,
+            dist_contracted: false,
             lambda_normal_dmed: 0.0,
             normal_dmed_from: 0.15,
             lambda_normal_dmean: 0.0,
             normal_dmean_from: 0.5,
             lambda_r: 0.01,
+            lambda_r_colour: 0.0,
             lambda_tv: 1e-10,
             tv_until: 0.5,
+            tv_form: TvForm::L2,
             layout: Layout::Adaptive,
             adapt_every: 0.05,
             adapt_from: 0.05,
@@ -266,6 +287,14 @@ pub enum Layout {
     Adaptive,
     Uniform,
     Fixed,
+}
+
+/// The total-variation penalty's form (see [`TrainConfig::tv_form`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum TvForm {
+    L2,
+    L1,
 }
 
 /// Named presets (applied before `--set` overrides).
@@ -582,6 +611,7 @@ impl TrainConfig {
             ("lambda_normal_dmed", self.lambda_normal_dmed),
             ("lambda_normal_dmean", self.lambda_normal_dmean),
             ("lambda_r", self.lambda_r),
+            ("lambda_r_colour", self.lambda_r_colour),
             ("lambda_tv", self.lambda_tv),
             ("geo_init", self.geo_init.abs()),
             ("prune_thres_init", self.prune_thres_init),

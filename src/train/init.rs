@@ -237,6 +237,8 @@ impl Trainer {
         let mom = Self::moments(ctx, &scene)?;
         let views = TrainViews::upload(ctx, train, TrainViews::default_chunk_bytes(ctx))?;
         let schedule = cfg.schedule();
+        let mut tv = Tv::with_reduction(ctx, reduction)?;
+        tv.set_form(cfg.tv_form);
         Ok(Trainer {
             ctx: ctx.clone(),
             rng: rand_pcg::Pcg64::seed_from_u64(cfg.seed),
@@ -250,7 +252,7 @@ impl Trainer {
             backward: Backward::with_reduction(ctx, reduction)?,
             ssim: Ssim::new(ctx)?,
             adam: Adam::new(ctx)?,
-            tv: Tv::with_reduction(ctx, reduction)?,
+            tv,
             loss: PixelLoss::new(ctx)?,
             normal: super::loss::NormalLoss::new(ctx)?,
             views,

@@ -9,12 +9,16 @@
 //!
 //! TV: L_tv = Σ_voxels Σ over the 12 cube edges (a, b) of `(geo[a] − geo[b])²`; [`Tv::record`] adds
 //! `weight · ∂L_tv/∂geo` into a gradient buffer and leaves per-workgroup partial sums of
-//! L_tv (unweighted) for [`Tv::read_value`].
+//! L_tv (unweighted) for [`Tv::read_value`]. With [`TvForm::L1`] ([`Tv::set_form`]) the
+//! penalty is SVRaster's instead: `Σ |geo[a] − geo[b]|` over the same edges, with its
+//! gradient rule `weight · Σ_3 edges (geo[c] > geo[nb] ? 1 : −1)` (equal ends give −1 to
+//! both, as its `cuda/src/tv_compute.cu`).
 
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
 
 use super::backward::Reduction;
+pub use super::config::TvForm;
 use crate::error::{Error, Result};
 use crate::gpu::kernels::push_constants;
 use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel};
@@ -196,6 +200,8 @@ struct TvPush {
     lost: u64,
     voxels: u32,
     weight: f32,
+    form: u32,
+    pad_: u32,
 }
 push_constants!(TRAIN_TV_VARIANTS, TvPush);
 
@@ -211,6 +217,7 @@ pub struct Tv {
     retired: Vec<Buffer>,
     lost: Buffer,
     last_groups: u32,
+    form: TvForm,
 }
 
 impl Tv {
@@ -240,7 +247,18 @@ impl Tv {
             retired: Vec::new(),
             lost: ctx.counter_buffer("tv.lost", 4)?,
             last_groups: 0,
+            form: TvForm::L2,
         })
+    }
+
+    /// The penalty recorded from now on (L2 unless set).
+    pub fn set_form(&mut self, form: TvForm) {
+        self.form = form;
+    }
+
+    /// The penalty [`Tv::record`] records.
+    pub fn form(&self) -> TvForm {
+        self.form
     }
 
     /// Whether the native float-atomic variant is in use.
@@ -285,6 +303,11 @@ impl Tv {
             lost: self.lost.address(),
             voxels,
             weight,
+            form: match self.form {
+                TvForm::L2 => 0,
+                TvForm::L1 => 1,
+            },
+            pad_: 0,
         };
         self.kernel.dispatch_1d(cmd, &push, voxels);
         recorder::barrier(&self.ctx, cmd);

@@ -350,6 +350,7 @@ impl Trainer {
             outputs: FrameOutputs {
                 normals: w.nmed > 0.0 || w.nmean > 0.0,
                 distortion: w.dist != 0.0,
+                distortion_contracted: w.dist != 0.0 && cfg.dist_contracted,
             },
             w,
         }

@@ -90,6 +90,7 @@ impl Trainer {
             &EntryLosses {
                 lambda_dist: w.dist / nrender as f32,
                 lambda_r: cfg.lambda_r / nrender as f32,
+                lambda_r_colour: cfg.lambda_r_colour / nrender as f32,
             },
             timing.as_mut().map(|t| &mut t.1),
             |cmd, geo_target| {

@@ -95,6 +95,7 @@ pub fn gpu_grads_walk(
     let all = FrameOutputs {
         normals: true,
         distortion: true,
+        distortion_contracted: false,
     };
     gpu_grads_with(
         ctx,
@@ -167,7 +168,11 @@ pub fn gpu_grads_segmented(
     if let Some(s) = segments {
         r.set_segment_entries(s);
     }
-    r.set_outputs(outputs);
+    // The distortion's axis is the loss's (the frame accumulates its sums on it).
+    r.set_outputs(FrameOutputs {
+        distortion_contracted: outputs.distortion && spec.dist_contracted,
+        ..outputs
+    });
     let opts = RenderOptions {
         samples: k,
         supersample: ss,
@@ -204,6 +209,7 @@ pub fn gpu_grads_segmented(
             &EntryLosses {
                 lambda_dist: spec.lambda_dist as f32,
                 lambda_r: spec.lambda_r as f32,
+                lambda_r_colour: spec.lambda_r_colour as f32,
             },
         )
     })?;

@@ -76,6 +76,24 @@ pub struct PixelWeights {
 pub struct LossSpec {
     pub lambda_dist: f64,
     pub lambda_r: f64,
+    /// SVRaster's per-point RGB form: λ·Σ_k w_k |c_k − gt|² with the w_k held constant.
+    /// No value (it is not the gradient of the loss here); gradient 2λ·w_k·(c_k − gt)
+    /// on the colours only.
+    pub lambda_r_colour: f64,
+    /// The distortion on SVRaster's contracted axis (`depth_contracted` of the ray
+    /// distance: x < 1 ? x : 2 − 1/x) instead of the ray distance.
+    pub dist_contracted: bool,
+}
+
+impl LossSpec {
+    /// A ray distance on the distortion's axis.
+    pub fn dist_axis(&self, t: f64) -> f64 {
+        if self.dist_contracted && t >= 1.0 {
+            2.0 - 1.0 / t
+        } else {
+            t
+        }
+    }
 }
 
 /// The loss and its gradients w.r.t. every parameter, plus the per-voxel priority.
@@ -490,8 +508,9 @@ fn forward_pixel(
                 .map(|ch| (c.rgb[ch] - pw.gt[ch]).powi(2))
                 .sum::<f64>()
             / 3.0;
-        let m = 0.5 * (c.a + c.b);
-        let delta = c.b - c.a;
+        let (da, db) = (spec.dist_axis(c.a), spec.dist_axis(c.b));
+        let m = 0.5 * (da + db);
+        let delta = db - da;
         dist += 2.0 * w * (m * w_before - wm_before) + w * w * delta / 3.0;
         w_before += w;
         wm_before += w * m;
@@ -529,7 +548,11 @@ fn backward_pixel(
     let n = cs.len();
     let nc = scene.shs_per_voxel();
     let w: Vec<f64> = cs.iter().map(|c| c.t * c.alpha).collect();
-    let m: Vec<f64> = cs.iter().map(|c| 0.5 * (c.a + c.b)).collect();
+    // Midpoints on the distortion's axis (the depth term uses the ray distances).
+    let m: Vec<f64> = cs
+        .iter()
+        .map(|c| 0.5 * (spec.dist_axis(c.a) + spec.dist_axis(c.b)))
+        .collect();
 
     // g_k = ∂L/∂w_k. Distortion: u_k = 2 (m_k W_k − M_k) + 2 Σ_{j>k} w_j (m_j − m_k)
     //   + 2/3 w_k δ_k, with prefix sums W, M and suffix sums S0 = Σ_{j>k} w_j,
@@ -544,7 +567,7 @@ fn backward_pixel(
     }
     for j in 0..n {
         let c = &cs[j];
-        let delta = c.b - c.a;
+        let delta = spec.dist_axis(c.b) - spec.dist_axis(c.a);
         let u = 2.0 * (m[j] * pw_sum - pwm_sum)
             + 2.0 * (s1[j] - m[j] * s0[j])
             + 2.0 / 3.0 * w[j] * delta;
@@ -564,7 +587,7 @@ fn backward_pixel(
         let c = &cs[j];
         let i = c.voxel;
         // ∂L/∂α_j and the priority.
-        let d_dval_dalpha = if k == 1 { m[j] } else { 0.0 };
+        let d_dval_dalpha = if k == 1 { 0.5 * (c.a + c.b) } else { 0.0 };
         let dl_dalpha = c.t * (g[j] + dd * d_dval_dalpha - acc);
         out.priority[i] += (c.alpha * dl_dalpha).abs();
         acc = c.alpha * g[j] + dd * c.dval + (1.0 - c.alpha) * acc;
@@ -621,12 +644,17 @@ fn backward_pixel(
         for cc in 0..8 {
             out.geo[scene.corners[i][cc] as usize] += dg[cc];
         }
-        // Colour: ∂L/∂c = w (rgb_weight + λ_R·2/3 (c − gt)), through max(0, ·) to SH.
+        // Colour: ∂L/∂c = w (rgb_weight + λ_R·2/3 (c − gt) + λ_Rc·2 (c − gt)), through
+        // max(0, ·) to SH.
         for ch in 0..3 {
             if c.pre[ch] <= 0.0 {
                 continue;
             }
-            let dc = w[j] * (pw.rgb[ch] + spec.lambda_r * 2.0 / 3.0 * (c.rgb[ch] - pw.gt[ch]));
+            let diff = c.rgb[ch] - pw.gt[ch];
+            let dc = w[j]
+                * (pw.rgb[ch]
+                    + spec.lambda_r * 2.0 / 3.0 * diff
+                    + spec.lambda_r_colour * 2.0 * diff);
             out.sh0[i][ch] += c.basis[0] * dc;
             for kk in 1..=nc {
                 out.shs[(i * nc + kk - 1) * 3 + ch] += c.basis[kk] * dc;

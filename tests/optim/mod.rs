@@ -9,14 +9,15 @@
 //! - TV: |L − L_ref| ≤ TV_VALUE_TOL · L_ref; per grid point |grad − grad_ref| ≤
 //!   (n + 4)·2⁻²⁴ · (|grad₀| + |w| · Σ over its n corner slots of 2·Σ_k |Δg|) (n f32
 //!   atomic adds in any order); the reference gradient matches central differences
-//!   within 1e-9·max(|grad|, 1) + 16·ε₆₄·L/h.
+//!   within 1e-9·max(|grad|, 1) + 16·ε₆₄·L/h. The same with SVRaster's L1 form
+//!   ([`TvForm::L1`]), whose per-slot scale is Σ_k |±1| = 3.
 
 use crate::common;
 
 use common::{context, finish, Rng};
 use svraster::gpu::{recorder, Buffer, Context, Memory};
 use svraster::train::backward::Reduction;
-use svraster::train::optim::{Adam, AdamConfig, Tv};
+use svraster::train::optim::{Adam, AdamConfig, Tv, TvForm};
 
 const ADAM_TOL: f64 = 1e-6;
 const TV_VALUE_TOL: f64 = 2e-6;
@@ -231,15 +232,46 @@ fn random_geo(rng: &mut Rng, points: usize) -> Vec<f32> {
         .collect()
 }
 
+/// One edge's penalty in f64.
+fn ref_edge(form: TvForm, d: f64) -> f64 {
+    match form {
+        TvForm::L2 => d * d,
+        TvForm::L1 => d.abs(),
+    }
+}
+
+/// A corner's gradient from its three edges (value `ga`, neighbours `nb`), unweighted,
+/// and its scale (the sum of the terms' magnitudes): L2 `2·Σ (ga − nb)`; L1 SVRaster's
+/// rule `Σ (ga > nb ? 1 : −1)`, written out as a comparison (equal ends give −1).
+fn ref_corner(form: TvForm, ga: f64, nb: [f64; 3]) -> (f64, f64) {
+    let (mut d, mut s) = (0.0, 0.0);
+    for gb in nb {
+        match form {
+            TvForm::L2 => {
+                d += 2.0 * (ga - gb);
+                s += 2.0 * (ga - gb).abs();
+            }
+            TvForm::L1 => {
+                d += if ga > gb { 1.0 } else { -1.0 };
+                s += 1.0;
+            }
+        }
+    }
+    (d, s)
+}
+
+fn corner_neighbours(c8: &[u32], a: usize, geo: &[f64]) -> [f64; 3] {
+    [4, 2, 1].map(|k| geo[c8[a ^ k] as usize])
+}
+
 /// L_tv in f64.
-fn ref_tv_value(corners: &[u32], geo: &[f64]) -> f64 {
+fn ref_tv_value(form: TvForm, corners: &[u32], geo: &[f64]) -> f64 {
     let mut l = 0.0;
     for c8 in corners.chunks_exact(8) {
         for a in 0..8 {
             for k in [4, 2, 1] {
                 if a & k == 0 {
-                    let d = geo[c8[a] as usize] - geo[c8[a | k] as usize];
-                    l += d * d;
+                    l += ref_edge(form, geo[c8[a] as usize] - geo[c8[a | k] as usize]);
                 }
             }
         }
@@ -247,24 +279,19 @@ fn ref_tv_value(corners: &[u32], geo: &[f64]) -> f64 {
     l
 }
 
-/// ∂L_tv/∂geo in f64, per point the scale Σ 2·Σ_k |Δg| of its contributions, and the
-/// number of contributions (corner slots naming the point).
-fn ref_tv_grad(corners: &[u32], geo: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<u32>) {
+/// ∂L_tv/∂geo in f64 (for L1 SVRaster's gradient rule), per point the scale of its
+/// contributions, and the number of contributions (corner slots naming the point).
+fn ref_tv_grad(form: TvForm, corners: &[u32], geo: &[f64]) -> (Vec<f64>, Vec<f64>, Vec<u32>) {
     let mut grad = vec![0.0; geo.len()];
     let mut scale = vec![0.0; geo.len()];
     let mut adds = vec![0u32; geo.len()];
     for c8 in corners.chunks_exact(8) {
         for a in 0..8 {
-            let ga = geo[c8[a] as usize];
-            let (mut d, mut s) = (0.0, 0.0);
-            for k in [4, 2, 1] {
-                let e = ga - geo[c8[a ^ k] as usize];
-                d += e;
-                s += e.abs();
-            }
-            grad[c8[a] as usize] += 2.0 * d;
-            scale[c8[a] as usize] += 2.0 * s;
-            adds[c8[a] as usize] += 1;
+            let p = c8[a] as usize;
+            let (d, s) = ref_corner(form, geo[p], corner_neighbours(c8, a, geo));
+            grad[p] += d;
+            scale[p] += s;
+            adds[p] += 1;
         }
     }
     (grad, scale, adds)
@@ -333,8 +360,8 @@ fn check_tv(
         tv.reduction()
     );
     let geo64: Vec<f64> = geo.iter().map(|&g| f64::from(g)).collect();
-    let l_ref = ref_tv_value(&layout.corners, &geo64);
-    let (g_ref, scale, adds) = ref_tv_grad(&layout.corners, &geo64);
+    let l_ref = ref_tv_value(tv.form(), &layout.corners, &geo64);
+    let (g_ref, scale, adds) = ref_tv_grad(tv.form(), &layout.corners, &geo64);
     let e_value = (value - l_ref).abs() / l_ref.max(f64::MIN_POSITIVE);
     assert!(
         e_value <= TV_VALUE_TOL,
@@ -352,8 +379,9 @@ fn check_tv(
         let e = (f64::from(grad[i]) - expect).abs() / (grad_units(adds[i]) * s);
         assert!(
             e <= 1.0,
-            "{:?}: point {i} ({} adds): grad {} expected {expect} (start {}, rel {e:e})",
+            "{:?} {:?}: point {i} ({} adds): grad {} expected {expect} (start {}, rel {e:e})",
             tv.reduction(),
+            tv.form(),
             adds[i],
             grad[i],
             grad0[i]
@@ -387,7 +415,7 @@ fn check_tv_ordered(
         .collect();
     let (value, grad) = run_tv(ctx, tv, layout, geo, &grad0, weight);
     let geo64: Vec<f64> = geo.iter().map(|&g| f64::from(g)).collect();
-    let l_ref = ref_tv_value(&layout.corners, &geo64);
+    let l_ref = ref_tv_value(tv.form(), &layout.corners, &geo64);
     let e_value = (value - l_ref).abs() / l_ref.max(f64::MIN_POSITIVE);
     assert!(
         e_value <= TV_VALUE_TOL,
@@ -399,13 +427,8 @@ fn check_tv_ordered(
         for a in 0..8 {
             let i = 8 * v + a;
             let ga = geo64[c8[a] as usize];
-            let (mut d, mut s) = (0.0, 0.0);
-            for k in [4, 2, 1] {
-                let e = ga - geo64[c8[a ^ k] as usize];
-                d += e;
-                s += e.abs();
-            }
-            let expect = f64::from(grad0[i]) + w * 2.0 * d;
+            let (d, s) = ref_corner(tv.form(), ga, corner_neighbours(c8, a, &geo64));
+            let expect = f64::from(grad0[i]) + w * d;
             if weight == 0.0 {
                 assert_eq!(
                     grad[i].to_bits(),
@@ -414,7 +437,7 @@ fn check_tv_ordered(
                 );
                 continue;
             }
-            let bound = f64::from(grad0[i]).abs() + w.abs() * 2.0 * s;
+            let bound = f64::from(grad0[i]).abs() + w.abs() * s;
             let e = (f64::from(grad[i]) - expect).abs() / (grad_units(2) * bound.max(1e-30));
             assert!(
                 e <= 1.0,

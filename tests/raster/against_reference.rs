@@ -146,6 +146,7 @@ fn one_segment_per_tile_is_the_unsegmented_frame() {
         r.set_outputs(FrameOutputs {
             normals: true,
             distortion: true,
+            distortion_contracted: false,
         });
     }
     let bits = |im: &Image| -> Vec<u32> {
@@ -219,11 +220,13 @@ fn optional_outputs_off_change_no_other_channel() {
     all.set_outputs(FrameOutputs {
         normals: true,
         distortion: true,
+        distortion_contracted: false,
     });
     let mut none = Renderer::new(&ctx).unwrap();
     none.set_outputs(FrameOutputs {
         normals: false,
         distortion: false,
+        distortion_contracted: false,
     });
     for seed in 0..3u64 {
         let mut rng = Rng(3000 + seed);

@@ -15,15 +15,19 @@ fn optional_outputs_off_give_the_same_gradients() {
     let on = FrameOutputs {
         normals: true,
         distortion: true,
+        distortion_contracted: false,
     };
     let off = FrameOutputs {
         normals: false,
         distortion: false,
+        distortion_contracted: false,
     };
     let red = Reduction::Ordered;
     let spec = LossSpec {
         lambda_dist: 0.0,
         lambda_r: 0.5,
+        lambda_r_colour: 0.0,
+        dist_contracted: false,
     };
     let a = gpu_grads_with(
         &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, on,
@@ -57,11 +61,14 @@ fn optional_outputs_off_give_the_same_gradients() {
     let spec = LossSpec {
         lambda_dist: 0.5,
         lambda_r: 0.5,
+        lambda_r_colour: 0.0,
+        dist_contracted: false,
     };
     // Distortion without normals (the no-normal kernels with the distortion terms).
     let dist_only = FrameOutputs {
         normals: false,
         distortion: true,
+        distortion_contracted: false,
     };
     let d = gpu_grads_with(
         &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, dist_only,
@@ -97,6 +104,8 @@ fn generic_walk_gradients_equal_the_8_lane_walk() {
         let spec = LossSpec {
             lambda_dist: 0.5,
             lambda_r: 0.5,
+            lambda_r_colour: 0.0,
+            dist_contracted: false,
         };
         let red = Reduction::Ordered;
         let fast = gpu_grads_walk(&ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false);
@@ -149,6 +158,8 @@ fn backward_matches_reference_on_random_scenes() {
             let spec = LossSpec {
                 lambda_dist: rng.range(0.1, 2.0),
                 lambda_r: rng.range(0.1, 2.0),
+                lambda_r_colour: 0.0,
+                dist_contracted: false,
             };
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
             for red in reductions(&ctx) {
@@ -184,15 +195,20 @@ fn each_loss_term_alone_and_small_chunks() {
     }
     let np = (cam.width * cam.height) as usize;
     let mut worst = [0.0f64; 4];
-    for term in 0..7 {
+    // Terms 0–3: pixel weights; 4: distortion; 5: per-point RGB; 6: both; 7: SVRaster's
+    // colour-only per-point RGB; 8: distortion on SVRaster's contracted axis (this
+    // outside view's hits all lie beyond distance 1, its 2 − 1/x branch).
+    for term in 0..9 {
         let mut on = [false; 5];
         if term < 4 {
             on[term] = true;
         }
         let pix = random_weights(&mut rng, np, on);
         let spec = LossSpec {
-            lambda_dist: if term == 4 || term == 6 { 1.0 } else { 0.0 },
+            lambda_dist: if matches!(term, 4 | 6 | 8) { 1.0 } else { 0.0 },
             lambda_r: if term == 5 || term == 6 { 1.0 } else { 0.0 },
+            lambda_r_colour: if term == 7 { 0.8 } else { 0.0 },
+            dist_contracted: term == 8,
         };
         for k in 1..=3u32 {
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
@@ -237,6 +253,7 @@ fn segmented_frame_gradients_match_reference() {
     let all = FrameOutputs {
         normals: true,
         distortion: true,
+        distortion_contracted: false,
     };
     let mut worst = [0.0f64; 4];
     for (i, seg) in [1u32, 3, 16].into_iter().enumerate() {
@@ -245,6 +262,8 @@ fn segmented_frame_gradients_match_reference() {
         let spec = LossSpec {
             lambda_dist: 1.0,
             lambda_r: 0.5,
+            lambda_r_colour: 0.3,
+            dist_contracted: seg == 3,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -295,10 +314,13 @@ fn one_segment_per_tile_gives_the_unsegmented_gradients() {
     let spec = LossSpec {
         lambda_dist: 0.7,
         lambda_r: 0.4,
+        lambda_r_colour: 0.0,
+        dist_contracted: false,
     };
     let all = FrameOutputs {
         normals: true,
         distortion: true,
+        distortion_contracted: false,
     };
     for k in 1..=3u32 {
         let run = |segments: u32| {
@@ -365,6 +387,8 @@ fn long_tile_lists_at_the_default_chunk_size() {
     let spec = LossSpec {
         lambda_dist: 1.0,
         lambda_r: 1.0,
+        lambda_r_colour: 0.0,
+        dist_contracted: false,
     };
     let reference = grads(&scene, &cam, 1, &pix, &spec);
     let hit = reference.priority.iter().filter(|&&p| p > 0.0).count();
@@ -418,6 +442,8 @@ fn sparse_tiles_backward_matches_reference() {
         let spec = LossSpec {
             lambda_dist: 1.0,
             lambda_r: 0.5,
+            lambda_r_colour: 0.0,
+            dist_contracted: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -475,6 +501,8 @@ fn near_opaque_voxels_backward_matches_reference() {
         let spec = LossSpec {
             lambda_dist: 1.0,
             lambda_r: 1.0,
+            lambda_r_colour: 0.0,
+            dist_contracted: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -490,6 +518,78 @@ fn near_opaque_voxels_backward_matches_reference() {
     }
     println!(
         "{cases} cases; worst relative errors: geo {:.2e} sh0 {:.2e} shs {:.2e} priority {:.2e}",
+        worst[0], worst[1], worst[2], worst[3]
+    );
+    finish(&ctx);
+}
+
+/// The distortion on SVRaster's contracted axis from a camera inside the scene, whose
+/// rays cross distance 1 (where the axis turns from x to 2 − 1/x): distortion alone and
+/// with every other term, K = 1..3, every reduction, against the f64 reference.
+#[test]
+fn contracted_distortion_matches_reference_across_distance_one() {
+    let ctx = context();
+    let mut rng = Rng(0x6a4d_00c1);
+    let mut scene = random_scene(&mut rng, 6, 1);
+    for g in scene.geo.iter_mut() {
+        *g = (rng.range(-6.0, 1.0)) as f32;
+    }
+    let cam = loop {
+        let cam = camera_inside(&mut rng, &scene, 31, 23);
+        if !(1..=3).any(|k| ambiguous(&scene, &cam, k)) {
+            break cam;
+        }
+    };
+    // The view's hits lie on both sides of distance 1.
+    let rays = common::reference_grad::pixel_rays(&scene, &cam);
+    let hits = || rays.iter().flat_map(|r| &r.hits);
+    let (before, beyond) = (
+        hits().filter(|h| h.1 < 1.0).count(),
+        hits().filter(|h| h.0 > 1.0).count(),
+    );
+    println!("hits ending before distance 1: {before}, starting beyond it: {beyond}");
+    assert!(before > 50 && beyond > 50, "{before} / {beyond}");
+    let np = (cam.width * cam.height) as usize;
+    let mut worst = [0.0f64; 4];
+    for (all, k) in [(false, 1u32), (true, 2), (false, 3)] {
+        let pix = random_weights(&mut rng, np, [all; 5]);
+        let spec = LossSpec {
+            lambda_dist: 1.0,
+            lambda_r: if all { 0.5 } else { 0.0 },
+            lambda_r_colour: 0.0,
+            dist_contracted: true,
+        };
+        let reference = grads(&scene, &cam, k as usize, &pix, &spec);
+        // The contraction changes the gradients (the test sees it).
+        let raw = grads(
+            &scene,
+            &cam,
+            k as usize,
+            &pix,
+            &LossSpec {
+                dist_contracted: false,
+                ..spec
+            },
+        );
+        let moved = reference
+            .geo
+            .iter()
+            .zip(&raw.geo)
+            .filter(|(a, b)| (*a - *b).abs() > 1e-3 * b.abs().max(1e-6))
+            .count();
+        assert!(moved > 10, "contraction moved only {moved} gradients");
+        for red in reductions(&ctx) {
+            let g = gpu_grads(&ctx, &scene, &cam, k, &pix, &spec, red, Some(5));
+            compare(
+                &format!("contracted K {k} all terms {all} {red:?}"),
+                &g,
+                &reference,
+                &mut worst,
+            );
+        }
+    }
+    println!(
+        "worst relative errors: geo {:.2e} sh0 {:.2e} shs {:.2e} priority {:.2e}",
         worst[0], worst[1], worst[2], worst[3]
     );
     finish(&ctx);

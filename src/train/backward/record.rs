@@ -102,7 +102,7 @@ impl Backward {
             chunks,
             chunk_size: self.chunk_size,
             voxels: scene.voxels,
-            pad0: 0,
+            lambda_r_colour: losses.lambda_r_colour,
             out_size: [frame.out_width, frame.out_height],
             render_size: [frame.render_width, frame.render_height],
             dimg: get(&self.dimg),
