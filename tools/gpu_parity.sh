@@ -20,12 +20,8 @@ set -u
 G=$(cd "${1:-.gpu}" && pwd); BUDGET=${2:-540}; shift 2 2>/dev/null || shift $#
 O=${OUT:-/tmp/out}; mkdir -p "$O"; ITERS=${ITERS:-6000}
 VARIANTS=("$@"); [ ${#VARIANTS[@]} -gt 0 ] || VARIANTS=(base suball adam rcolour tvl1 dist)
-for f in "$G"/debs/*.deb; do dpkg -x "$f" /; done; ldconfig
-ICD=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-[ -f $ICD ] && export VK_DRIVER_FILES=$ICD
-[ -x "$(cat "$G/project_path")/target/release/svraster" ] || tar xJf "$G/ours.tar.xz" -C /
-B=$(cat "$G/project_path")/target/release/svraster
-[ -d /tmp/lego ] || { mkdir -p /tmp/lego && cp -r "$G/lego/." /tmp/lego/; }
+. "$(dirname "$0")/gpu_kit.sh"
+kit_lego
 start=$(date +%s); : > "$O/parity.jsonl"
 for v in "${VARIANTS[@]}"; do
   case $v in

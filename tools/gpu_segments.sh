@@ -8,12 +8,8 @@
 # $OUT/segments.jsonl (one bench JSON per line) and prints a table.
 set -u
 G=$(cd "${1:-.gpu}" && pwd); O=${OUT:-/tmp/out}; mkdir -p "$O"
-for f in "$G"/debs/*.deb; do dpkg -x "$f" /; done; ldconfig
-ICD=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-[ -f $ICD ] && export VK_DRIVER_FILES=$ICD
-[ -x "$(cat "$G/project_path")/target/release/svraster" ] || tar xJf "$G/ours.tar.xz" -C /
-B=$(cat "$G/project_path")/target/release/svraster
-[ -d /tmp/lego ] || { mkdir -p /tmp/lego && cp -r "$G/lego/." /tmp/lego/; }
+. "$(dirname "$0")/gpu_kit.sh"
+kit_lego
 : > "$O/segments.jsonl"
 for ds in 4 2 1; do
   for seg in 0 512 2048 8192; do

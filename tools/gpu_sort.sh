@@ -10,11 +10,7 @@
 # $OUT/sort.jsonl (one bench JSON per line) and prints a table with GB/s per pass.
 set -u
 G=$(cd "${1:-.gpu}" && pwd); O=${OUT:-/tmp/out}; mkdir -p "$O"
-for f in "$G"/debs/*.deb; do dpkg -x "$f" /; done; ldconfig
-ICD=/usr/local/nvidia/share/vulkan/icd.d/nvidia_icd.json
-[ -f $ICD ] && export VK_DRIVER_FILES=$ICD
-[ -x "$(cat "$G/project_path")/target/release/svraster" ] || tar xJf "$G/ours.tar.xz" -C /
-B=$(cat "$G/project_path")/target/release/svraster
+. "$(dirname "$0")/gpu_kit.sh"
 : > "$O/sort.jsonl"
 for round in 1 2; do
   for args in "--bits 0..64" "--bits 0..40" "--bits 0..64 --vary 0..40"; do
