@@ -223,14 +223,17 @@ struct Case {
     spec: LossSpec,
 }
 
-/// SH degrees 0..=3 × K = 1, 2, 3 × a camera outside and one inside.
+/// SH degrees 0..=3 × K = 1, 2, 3 × a camera outside and one inside; the odd degrees
+/// with the frame-mean background (`Scene::background_frame_mean`), which couples
+/// every pixel's rgb term to every other's colour.
 fn cases(seed: u64) -> Vec<Case> {
     let mut rng = Rng(seed);
     let mut out = Vec::new();
     for degree in 0..=3u32 {
         for k in 1..=3usize {
             for inside in [false, true] {
-                let scene = grad_scene(&mut rng, degree);
+                let mut scene = grad_scene(&mut rng, degree);
+                scene.background_frame_mean = degree % 2 == 1;
                 let cam = if inside {
                     camera_inside(&mut rng, &scene, W, H)
                 } else if k == 2 {
@@ -244,10 +247,15 @@ fn cases(seed: u64) -> Vec<Case> {
                 spec.dist_contracted = k == 2;
                 out.push(Case {
                     name: format!(
-                        "degree {degree} K={k} {}{} ({} voxels)",
+                        "degree {degree} K={k} {}{}{} ({} voxels)",
                         if inside { "inside" } else { "outside" },
                         if k == 2 {
                             ", contracted distortion"
+                        } else {
+                            ""
+                        },
+                        if scene.background_frame_mean {
+                            ", frame-mean background"
                         } else {
                             ""
                         },

@@ -101,6 +101,7 @@ fn svraster_checkpoints_import_exactly() {
     let sh0: Vec<f32> = scene.sh0.iter().flatten().copied().collect();
     let opts = SvrasterImport {
         background: [1.0; 3],
+        background_frame_mean: false,
         supersample: 1.5,
     };
     // Plain, all degrees active.

@@ -8,21 +8,31 @@ use anyhow::{bail, Context as _};
 use svraster::scene::checkpoint;
 use svraster::scene::svraster::{import_svraster, SvrasterImport};
 
-/// `--background`: `white`, `black` or `R,G,B` (display values in 0..1).
-pub fn parse_background(s: &str) -> Result<[f32; 3], String> {
+/// The imported model's background (`--background`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Background {
+    Colour([f32; 3]),
+    /// Each frame's own mean colour (`Scene::background_frame_mean`).
+    FrameMean,
+}
+
+/// `--background`: `white`, `black`, `frame-mean` or `R,G,B` (display values in 0..1).
+pub fn parse_background(s: &str) -> Result<Background, String> {
+    let expected = || format!("`{s}`: expected white, black, frame-mean or R,G,B in 0..1");
     match s {
-        "white" => Ok([1.0; 3]),
-        "black" => Ok([0.0; 3]),
+        "white" => Ok(Background::Colour([1.0; 3])),
+        "black" => Ok(Background::Colour([0.0; 3])),
+        "frame-mean" => Ok(Background::FrameMean),
         _ => {
             let v: Vec<f32> = s
                 .split(',')
                 .map(|x| x.trim().parse::<f32>())
                 .collect::<Result<_, _>>()
-                .map_err(|_| format!("`{s}`: expected white, black or R,G,B in 0..1"))?;
+                .map_err(|_| expected())?;
             if v.len() != 3 || v.iter().any(|c| !(0.0..=1.0).contains(c)) {
-                return Err(format!("`{s}`: expected white, black or R,G,B in 0..1"));
+                return Err(expected());
             }
-            Ok([v[0], v[1], v[2]])
+            Ok(Background::Colour([v[0], v[1], v[2]]))
         }
     }
 }
@@ -30,7 +40,7 @@ pub fn parse_background(s: &str) -> Result<[f32; 3], String> {
 pub fn run(
     ckpt: &Path,
     out: &Path,
-    background: [f32; 3],
+    background: Background,
     ss: f32,
     json: bool,
 ) -> anyhow::Result<()> {
@@ -55,7 +65,11 @@ pub fn run(
     let scene = import_svraster(
         ckpt,
         &SvrasterImport {
-            background,
+            background: match background {
+                Background::Colour(c) => c,
+                Background::FrameMean => [0.0; 3],
+            },
+            background_frame_mean: background == Background::FrameMean,
             supersample: ss,
         },
     )?;
@@ -70,7 +84,11 @@ pub fn run(
                 "grid_points": scene.num_grid_points(),
                 "max_level": scene.max_level(),
                 "sh_degree": scene.sh_degree,
-                "background": scene.background,
+                "background": if scene.background_frame_mean {
+                    serde_json::json!("frame-mean")
+                } else {
+                    serde_json::json!(scene.background)
+                },
                 "supersample": scene.supersample,
                 "bytes": bytes,
             })
@@ -78,13 +96,17 @@ pub fn run(
     } else {
         println!(
             "imported {}: {} voxels (levels up to {}), {} grid points, SH degree {}, \
-             background {:?}, ss {} → {} ({:.1} MiB)",
+             background {}, ss {} → {} ({:.1} MiB)",
             ckpt.display(),
             scene.num_voxels(),
             scene.max_level(),
             scene.num_grid_points(),
             scene.sh_degree,
-            scene.background,
+            if scene.background_frame_mean {
+                "frame-mean".to_string()
+            } else {
+                format!("{:?}", scene.background)
+            },
             scene.supersample,
             out.display(),
             bytes as f64 / (1 << 20) as f64

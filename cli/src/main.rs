@@ -461,9 +461,11 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
         /// The background, which SVRaster's checkpoint does not record: white
-        /// (NeRF-synthetic, `white_background`), black (DTU, and the default) or R,G,B.
+        /// (NeRF-synthetic, `white_background`), black (DTU, and the default),
+        /// frame-mean (each frame's own mean colour: Mip-NeRF 360 and other captures
+        /// trained with neither) or R,G,B.
         #[arg(long, default_value = "black", value_parser = import::parse_background)]
-        background: [f32; 3],
+        background: import::Background,
         /// The supersampling it was trained with (SVRaster's `ss`; renders use it).
         #[arg(long, default_value_t = 1.5)]
         ss: f32,

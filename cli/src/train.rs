@@ -347,7 +347,9 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     let mut train = train;
     if init.is_none() {
         let region = svraster::train::bounds::resolve_run(&mut cfg, &mut train)?;
-        if cfg.background_from_photos {
+        if cfg.background_frame_mean {
+            eprintln!("background: each frame's own mean colour (background_frame_mean)");
+        } else if cfg.background_from_photos {
             eprintln!(
                 "background colour: the training photos' mean [{:.3}, {:.3}, {:.3}]",
                 cfg.background[0], cfg.background[1], cfg.background[2]

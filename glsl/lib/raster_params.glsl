@@ -66,6 +66,9 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
     U32s seg_tile; F32s seg_state;
     uint seg_size;   // entries per segment (0: segments off, chunks as before)
     uint slot_cap;   // slots the two buffers above hold
+    // optional (0: the constant background `bg`): the frame-mean background's sums
+    // (raster/frame_mean.comp), whose FM_SLOT_MEAN finalize composites behind T
+    F32s bgsum;
 };
 
 // Work counters (bench): per walk, subgroup loop trips over entries; trips where at least
@@ -105,6 +108,10 @@ const uint CH_R = 0u, CH_G = 1u, CH_B = 2u, CH_T = 3u, CH_DEPTH = 4u, CH_DMED = 
 // transmittance in front of the last contributor (the backward starts there instead
 // of dividing by 1 - α, which reaches 1e-5 for a near-opaque last voxel).
 const uint AUX_M = 0u, AUX_DIST = 1u, AUX_T = 2u, AUX_TLAST = 3u, AUX_CHANNELS = 4u;
+// The frame-mean background (raster/frame_mean.comp): the buffer's slots (floats), the
+// pixels one workgroup sums, and the kernel's modes.
+const uint FM_SLOT_MEAN = 0u, FM_SLOT_GRAD = 4u, FM_PARTIALS = 8u, FM_PIXELS = 4096u;
+const uint FM_SUM_COLOUR = 0u, FM_SUM_TGRAD = 1u, FM_TOTAL = 2u, FM_APPLY = 3u;
 
 // Segments. With seg_size = S > 0 a tile's sorted list [r0, r1) is cut into segments of
 // S entries, each composited by its own workgroup (every SM busy however few tiles the

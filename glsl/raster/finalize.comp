@@ -1,6 +1,7 @@
 #version 460
 // Resolves the composited state per pixel (render resolution): background behind
-// the remaining transmittance, alpha = 1 - T, mean depth and the reference's median
+// the remaining transmittance (the constant `bg`, or the frame's mean colour summed
+// before by frame_mean.comp), alpha = 1 - T, mean depth and the reference's median
 // depth (the last voxel entered with T > 0.5, refined with 16 samples) as camera z.
 #include "raster_params.glsl"
 #include "explin.glsl"
@@ -25,7 +26,11 @@ void main() {
 
     float T = P.img.v[CH_T * npix + p];
     P.aux.v[AUX_T * npix + p] = T;
-    for (uint c = 0u; c < 3u; ++c) P.img.v[c * npix + p] += T * P.bg[c];
+    vec3 bg = P.bg;
+    if (uint64_t(P.bgsum) != 0ul) {
+        bg = vec3(P.bgsum.v[FM_SLOT_MEAN], P.bgsum.v[FM_SLOT_MEAN + 1u], P.bgsum.v[FM_SLOT_MEAN + 2u]);
+    }
+    for (uint c = 0u; c < 3u; ++c) P.img.v[c * npix + p] += T * bg[c];
     P.img.v[CH_T * npix + p] = 1.0 - T;
     P.img.v[CH_DEPTH * npix + p] /= rd_norm;
 

@@ -38,7 +38,7 @@ mod stream;
 use crate::scene::SceneGpu;
 pub(crate) use counters::COUNTER_WORDS;
 pub use counters::{WalkCounters, WorkCounters};
-pub(crate) use params::AUX_CHANNELS;
+pub(crate) use params::{FrameMeanPush, AUX_CHANNELS};
 use params::{FrameOkPush, FrameParams};
 use plan::Plan;
 pub use plan::{FrameGeometry, FrameOutputs};
@@ -117,6 +117,7 @@ struct RasterKernels {
     composite_nonormal: [[LazyKernel; 3]; 2],
     finalize: Kernel,
     downsample: Kernel,
+    frame_mean: Kernel,
     host_output: Kernel,
     frame_ok: Kernel,
     seg_plan: Kernel,
@@ -180,6 +181,8 @@ pub struct Renderer {
     out_img: GrowBuffer,
     last_id: GrowBuffer,
     aux: GrowBuffer,
+    /// The frame-mean background's sums (`plan::frame_mean_floats`).
+    bgsum: GrowBuffer,
     /// Host-visible copies of queued frames' images ([`Renderer::render_each`]).
     image_slots: [GrowBuffer; 2],
     /// Entries per segment (0: segments off; [`Renderer::set_segment_entries`]), the
@@ -221,6 +224,7 @@ impl Renderer {
                 .map(|row| row.map(LazyKernel::new)),
             finalize: Kernel::new(ctx, &kernels::RASTER_FINALIZE)?,
             downsample: Kernel::new(ctx, &kernels::RASTER_DOWNSAMPLE)?,
+            frame_mean: Kernel::new(ctx, &kernels::RASTER_FRAME_MEAN)?,
             host_output: Kernel::new(ctx, &kernels::RASTER_HOST_OUTPUT)?,
             frame_ok: Kernel::new(ctx, &kernels::RASTER_FRAME_OK)?,
             seg_plan: Kernel::new(ctx, &kernels::RASTER_SEG_PLAN)?,
@@ -276,6 +280,7 @@ impl Renderer {
             out_img: GrowBuffer::new("raster.out-image"),
             last_id: GrowBuffer::new("raster.last-contributor"),
             aux: GrowBuffer::new("raster.aux"),
+            bgsum: GrowBuffer::new("raster.background-sums"),
             image_slots: [
                 GrowBuffer::with_memory("raster.image-slot-0", Memory::Readback),
                 GrowBuffer::with_memory("raster.image-slot-1", Memory::Readback),

@@ -75,6 +75,8 @@ pub(super) struct FrameParams {
     /// Entries per segment (0: off) and slots held by the two buffers above.
     pub(super) seg_size: u32,
     pub(super) slot_cap: u32,
+    /// The frame-mean background's sums (0: the constant `bg`), see frame_mean.comp.
+    pub(super) bgsum: u64,
 }
 gpu_layout!(FrameParams, FrameParams);
 /// Planar channels of the per-pixel training aux buffer (`AUX_*` in raster_params.glsl).
@@ -90,6 +92,21 @@ push_constants!(RASTER_EMIT_KEYS, ParamsPush);
 push_constants!(RASTER_TILE_RANGES, ParamsPush);
 push_constants!(RASTER_FINALIZE, ParamsPush);
 push_constants!(RASTER_DOWNSAMPLE, ParamsPush);
+
+/// Push constants of raster/frame_mean.comp (the forward's modes and the training
+/// backward's).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+pub(crate) struct FrameMeanPush {
+    pub(crate) frame: u64,
+    /// The backward's parameter block (0 in the forward's modes).
+    pub(crate) back: u64,
+    /// `FM_*` mode.
+    pub(crate) mode: u32,
+    /// `FM_TOTAL`: the slot written.
+    pub(crate) dst: u32,
+}
+push_constants!(RASTER_FRAME_MEAN, FrameMeanPush);
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]

@@ -9,6 +9,12 @@ use crate::scan::PrefixScan;
 use crate::scene::SceneGpu;
 use crate::sort::RadixSort;
 
+/// Floats of the frame-mean background's buffer for `rpix` render pixels: its slots and
+/// one partial (4 floats) per workgroup of `FM_PIXELS` (raster/frame_mean.comp).
+pub(super) fn frame_mean_floats(rpix: u64) -> u64 {
+    u64::from(glsl::FM_PARTIALS) + 4 * rpix.div_ceil(u64::from(glsl::FM_PIXELS))
+}
+
 /// Everything a recorded frame needs to interpret its results.
 #[derive(Clone, Copy, Debug)]
 pub(super) struct Plan {
@@ -26,6 +32,8 @@ pub(super) struct Plan {
     pub(super) outputs: FrameOutputs,
     /// Entries per segment (0: composited per tile in chunks).
     pub(super) seg_size: u32,
+    /// Composited over the frame's own mean colour ([`crate::scene::Scene::background_frame_mean`]).
+    pub(super) frame_mean: bool,
 }
 
 /// What a frame accumulates besides colour, opacity, depth and median depth (see
@@ -96,6 +104,9 @@ pub struct FrameGeometry {
     /// of the indirect dispatch arguments over the slots, for the backward's walk of
     /// the same segments; `None` when the frame was composited per tile.
     pub segment_args: Option<(ash::vk::Buffer, u64)>,
+    /// Composited over its own mean colour (`Scene::background_frame_mean`): the
+    /// backward then adds the gradient through that mean.
+    pub frame_mean_background: bool,
 }
 
 impl Renderer {
@@ -223,6 +234,11 @@ impl Renderer {
             counters: self.counters_on,
             outputs: self.outputs,
             seg_size: self.seg_size,
+            // Host frames are premultiplied over the host's image and fields over
+            // nothing: neither has a background.
+            frame_mean: scene.background_frame_mean
+                && self.host.is_none()
+                && self.voxel_colours.is_none(),
         })
     }
 
@@ -244,6 +260,9 @@ impl Renderer {
         self.med_t.ensure(&ctx, rpix * 4)?;
         self.last_id.ensure(&ctx, rpix * 4)?;
         self.aux.ensure(&ctx, rpix * AUX_CHANNELS * 4)?;
+        if plan.frame_mean {
+            self.bgsum.ensure(&ctx, frame_mean_floats(rpix) * 4)?;
+        }
         if let Some(per_entries) = self.entry_cap.checked_div(self.seg_size) {
             // Slots stay below tiles + entries / S ("Segments" in raster_params.glsl).
             let slots = u64::from(plan.tiles) + u64::from(per_entries) + 1;

@@ -121,6 +121,7 @@ impl Renderer {
             counters: p.counters,
             outputs: p.outputs,
             segment_args: (p.seg_size > 0).then(|| (self.stats.raw(), STAT_SEG_ARGS * 4)),
+            frame_mean_background: p.frame_mean,
         })
     }
 

@@ -4,7 +4,7 @@
 
 use ash::vk;
 
-use super::params::{ChunkPush, FieldPush, FrameParams, ParamsPush, SetupPush};
+use super::params::{ChunkPush, FieldPush, FrameMeanPush, FrameParams, ParamsPush, SetupPush};
 use super::plan::Plan;
 use super::{FrameStats, RenderOptions, Renderer, CHANNELS, STAT_ARGS, STAT_USED, TILE};
 use crate::camera::Camera;
@@ -168,6 +168,11 @@ impl Renderer {
             },
             seg_size: self.seg_size,
             slot_cap: self.slot_cap,
+            bgsum: if plan.frame_mean {
+                self.bgsum.address()
+            } else {
+                0
+            },
         };
         let dev = ctx.device();
         let pa = ParamsPush {
@@ -336,6 +341,21 @@ impl Renderer {
             t.mark(cmd, "composite");
         }
         let rpix = plan.render_w * plan.render_h;
+        if plan.frame_mean {
+            // The frame's mean colour, before finalize composites it behind T.
+            let fm = |mode, dst| FrameMeanPush {
+                frame: self.params.address(),
+                back: 0,
+                mode,
+                dst,
+            };
+            let groups = rpix.div_ceil(glsl::FM_PIXELS);
+            let k = &self.k.frame_mean;
+            k.dispatch_1d(cmd, &fm(glsl::FM_SUM_COLOUR, 0), groups * 256);
+            recorder::barrier(&ctx, cmd);
+            k.dispatch(cmd, &fm(glsl::FM_TOTAL, glsl::FM_SLOT_MEAN), [1, 1, 1]);
+            recorder::barrier(&ctx, cmd);
+        }
         self.k.finalize.dispatch_1d(cmd, &pa, rpix);
         recorder::barrier(&ctx, cmd);
         if plan.supersampled {

@@ -50,6 +50,8 @@ pub struct SceneGpu {
     pub center: [f32; 3],
     pub extent: f32,
     pub background: [f32; 3],
+    /// [`crate::scene::Scene::background_frame_mean`].
+    pub background_frame_mean: bool,
 }
 
 impl SceneGpu {
@@ -76,6 +78,7 @@ impl SceneGpu {
             center: scene.center,
             extent: scene.extent,
             background: scene.background,
+            background_frame_mean: scene.background_frame_mean,
         })
     }
 

@@ -220,6 +220,13 @@ pub struct Scene {
     pub sh_degree: u32,
     /// Background colour composited behind the voxels.
     pub background: [f32; 3],
+    /// Composite each frame's own mean colour behind the voxels instead of `background`:
+    /// out = C + T·mean(C), the mean of the premultiplied colour C = Σ w c over the frame
+    /// at render resolution, recomputed every frame and differentiated through in
+    /// training. SVRaster's background for scenes that are neither white nor black (its
+    /// mip-NeRF 360 configuration, renderer.py). Host frames and field renders have no
+    /// background either way.
+    pub background_frame_mean: bool,
     /// Supersampling the model renders at by default (1 = none): the training run's `ss`.
     /// A model trained on supersampled, downsampled frames (the paper's h_ss = 1.5) is
     /// fitted to that anti-aliased image formation, and renders it best the same way.
@@ -275,6 +282,7 @@ impl Scene {
             extent,
             sh_degree,
             background: [0.0; 3],
+            background_frame_mean: false,
             supersample: 1.0,
             world: WorldFrame::IDENTITY,
             geo: vec![geo_init; keys.len()],

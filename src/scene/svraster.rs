@@ -16,8 +16,8 @@
 //! `dequantization` does.
 //!
 //! Not in the checkpoint, so chosen by the caller ([`SvrasterImport`]): the background
-//! (a training option there: white for NeRF-synthetic, black for DTU; Mip-NeRF 360's
-//! mean-of-frame background has no constant equivalent) and the supersampling the model
+//! (a training option there: white for NeRF-synthetic, black for DTU, and for Mip-NeRF
+//! 360 each frame's own mean colour, `background_frame_mean`) and the supersampling the model
 //! was trained with (SVRaster's `ss`, 1.5 by default).
 
 use std::collections::HashMap;
@@ -33,6 +33,10 @@ use crate::error::{Error, Result};
 pub struct SvrasterImport {
     /// Background colour (display values).
     pub background: [f32; 3],
+    /// Each frame's own mean colour as the background instead
+    /// ([`Scene::background_frame_mean`]): SVRaster's for models trained neither on
+    /// white nor on black (its Mip-NeRF 360 configuration).
+    pub background_frame_mean: bool,
     /// Supersampling the model renders at by default (SVRaster's `ss`).
     pub supersample: f32,
 }
@@ -41,6 +45,7 @@ impl Default for SvrasterImport {
     fn default() -> Self {
         SvrasterImport {
             background: [0.0; 3],
+            background_frame_mean: false,
             supersample: 1.5,
         }
     }
@@ -320,6 +325,7 @@ pub fn import_svraster(path: &Path, opts: &SvrasterImport) -> Result<Scene> {
             .extend_from_slice(&shs[i * k_all * 3..][..keep * 3]);
     }
     scene.background = opts.background;
+    scene.background_frame_mean = opts.background_frame_mean;
     scene.supersample = opts.supersample.max(1.0);
     scene.world = WorldFrame::IDENTITY;
     scene.validate_arrays()?;

@@ -23,7 +23,7 @@ use crate::gpu::{
     glsl, gpu_layout, kernels, recorder, Buffer, Context, GrowBuffer, Kernel, LazyKernel, Memory,
     Timestamps,
 };
-use crate::raster::{FrameGeometry, FrameStats};
+use crate::raster::{FrameGeometry, FrameMeanPush, FrameStats};
 use crate::scene::SceneGpu;
 
 mod record;
@@ -336,6 +336,8 @@ struct OrderedKernels {
 pub struct Backward {
     ctx: Context,
     prepare_k: Kernel,
+    /// The gradient through a frame-mean background (raster/frame_mean.comp).
+    frame_mean: Kernel,
     seg_bmerge: Kernel,
     /// [plain, work counters][samples - 1].
     backward: [[Kernel; 3]; 2],
@@ -388,6 +390,7 @@ impl Backward {
         Ok(Backward {
             ctx: ctx.clone(),
             prepare_k: Kernel::new(ctx, &kernels::TRAIN_GRAD_PREPARE)?,
+            frame_mean: Kernel::new(ctx, &kernels::RASTER_FRAME_MEAN)?,
             seg_bmerge: Kernel::new(ctx, &kernels::TRAIN_SEG_BMERGE)?,
             backward: [
                 [

@@ -68,6 +68,11 @@ pub struct TrainConfig {
     /// ray that leaves the model unabsorbed sees the scene's average colour, not black.
     /// Setting `background` turns it off; photos with alpha (Blender) refuse it.
     pub background_from_photos: bool,
+    /// Behind each frame, its own mean colour instead of `background`
+    /// ([`crate::scene::Scene::background_frame_mean`]): SVRaster's background for
+    /// captures that are neither white nor black (its mip-NeRF 360 configuration;
+    /// docs/PARITY.md, presets). Setting `background` turns it off.
+    pub background_frame_mean: bool,
     /// Final SH degree, raised by one every `sh_every` of the run from 0 (0: the final
     /// degree from the first iteration, as the reference's `sh_degree_init = 3`).
     pub sh_degree: u32,
@@ -225,6 +230,7 @@ impl Default for TrainConfig {
             world_scale: 1.0,
             background: [1.0; 3],
             background_from_photos: false,
+            background_frame_mean: false,
             sh_degree: 3,
             sh_every: 0.05,
             geo_init: -10.0,
@@ -521,6 +527,7 @@ impl TrainConfig {
         // A colour given is the colour used (not replaced by the photos' mean).
         if k == "background" {
             self.background_from_photos = false;
+            self.background_frame_mean = false;
         }
         Ok(())
     }

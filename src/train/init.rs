@@ -37,6 +37,7 @@ fn init_scene(cfg: &TrainConfig, cells: &[([u32; 3], u32)]) -> Result<Scene> {
     scene.sh_degree = cfg.sh_degree;
     scene.shs = vec![0.0; scene.num_voxels() * scene.shs_per_voxel() * 3];
     scene.background = cfg.background;
+    scene.background_frame_mean = cfg.background_frame_mean;
     scene.supersample = cfg.ss;
     scene.world = cfg.world();
     let dc = (cfg.sh0_init - 0.5) / 0.282_094_8;

@@ -148,6 +148,24 @@ fn corrupt_metadata() {
     for v in ["0.5", "0", "9", "-1", "inf", "NaN", "x"] {
         corrupt(|m, _| m["supersample"] = json!(v), &["`supersample`"]);
     }
+    for v in ["mean", "FRAME_MEAN", ""] {
+        corrupt(
+            |m, _| m["background_mode"] = json!(v),
+            &["`background_mode`", "`colour` or `frame_mean`"],
+        );
+    }
+    corrupt(
+        |m, _| m["background_mode"] = json!(true),
+        &["`background_mode` must be a string"],
+    );
+    // `colour` is the default, written out.
+    let (mut meta, ts) = tensors(&to_bytes(&base_scene()).unwrap());
+    meta["background_mode"] = json!("colour");
+    assert!(
+        !from_bytes(&assemble(&meta, &ts))
+            .unwrap()
+            .background_frame_mean
+    );
     // Files written before `supersample` existed load with none (1).
     let mut old_scene = base_scene();
     old_scene.supersample = 1.5;

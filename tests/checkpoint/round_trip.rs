@@ -150,6 +150,18 @@ fn byte_layout() {
     assert_eq!(meta["sh_degree"], "1");
     assert_eq!(meta["background"], "[0,0.5,1]");
     assert_eq!(meta["supersample"], "1.5");
+    // A constant background writes no mode; the frame mean writes `frame_mean` and
+    // loads back.
+    assert!(!meta.contains_key("background_mode"));
+    let mut fm = scene.clone();
+    fm.background_frame_mean = true;
+    let fm_bytes = to_bytes(&fm).unwrap();
+    let back = from_bytes(&fm_bytes).unwrap();
+    assert!(back.background_frame_mean);
+    assert_eq!(back, fm);
+    let fm_n = u64::from_le_bytes(fm_bytes[..8].try_into().unwrap()) as usize;
+    let fm_head: Value = serde_json::from_slice(&fm_bytes[8..8 + fm_n]).unwrap();
+    assert_eq!(fm_head["__metadata__"]["background_mode"], "frame_mean");
     assert!(meta.values().all(Value::is_string));
     let center: Vec<f32> = serde_json::from_str(meta["scene_center"].as_str().unwrap()).unwrap();
     assert_eq!(center, vec![0.5, -1.0, 2.25]);

@@ -301,18 +301,32 @@ pub fn render_pixel_cut(
     px
 }
 
-/// Renders every pixel of `cam` at its resolution.
+/// Renders every pixel of `cam` at its resolution. With `background_frame_mean` the
+/// background behind every pixel is the frame's mean composited colour
+/// m = (1/N) Σ_p C_p (C = Σ w c, before any background): rgb = C + T·m.
 pub fn render(scene: &Scene, cam: &Camera, k: usize) -> Vec<RefPixel> {
     let mut out = Vec::with_capacity((cam.width * cam.height) as usize);
+    let plain;
+    let src = if scene.background_frame_mean {
+        let mut s = scene.clone();
+        s.background = [0.0; 3];
+        plain = s;
+        &plain
+    } else {
+        scene
+    };
     for py in 0..cam.height {
         for px in 0..cam.width {
-            out.push(render_pixel(
-                scene,
-                cam,
-                px as f64 + 0.5,
-                py as f64 + 0.5,
-                k,
-            ));
+            out.push(render_pixel(src, cam, px as f64 + 0.5, py as f64 + 0.5, k));
+        }
+    }
+    if scene.background_frame_mean {
+        let n = out.len() as f64;
+        let m: [f64; 3] = std::array::from_fn(|c| out.iter().map(|p| p.rgb[c]).sum::<f64>() / n);
+        for p in &mut out {
+            for c in 0..3 {
+                p.rgb[c] += (1.0 - p.alpha) * m[c];
+            }
         }
     }
     out

@@ -11,7 +11,9 @@
 //! `L = Σ_p rgb·out.rgb + alpha·out.alpha + depth·out.depth + normal·out.normal
 //!        + λ_dist·dist_p + λ_R·R_p`
 //!
-//! where `out` are the reference outputs (rgb includes `T_final·bg`, alpha = `1 − T_final`,
+//! where `out` are the reference outputs (rgb includes `T_final·bg`, where bg is the
+//! scene's colour or, with `background_frame_mean`, the frame's mean composited colour,
+//! which couples the pixels: see `frame_background`; alpha = `1 − T_final`,
 //! depth = camera z = `Σ T_k dval_k / |camera dir|`, normal = `Σ w_k n_k`). Over the
 //! contributors `k` of the pixel (hits in entry order, skipped when alpha < MIN_ALPHA,
 //! stopping after early termination), `w_k = T_k α_k`, `[a_k, b_k]` the near-clamped ray
@@ -247,9 +249,18 @@ pub fn evaluate(
         contributors: Vec::with_capacity(rays.len()),
         pixel_loss: Vec::with_capacity(rays.len()),
     };
-    for (p, (ray, pw)) in rays.iter().zip(pix).enumerate() {
-        let n = nudge.filter(|n| n.pixel == p).map(|n| (n.entry, n.delta));
-        let f = forward_pixel(scene, params, ray, k, pw, spec, n, &mut ev.signature);
+    let fwd: Vec<PixelForward> = rays
+        .iter()
+        .zip(pix)
+        .enumerate()
+        .map(|(p, (ray, pw))| {
+            let n = nudge.filter(|n| n.pixel == p).map(|n| (n.entry, n.delta));
+            forward_pixel(scene, params, ray, k, pw, spec, n, &mut ev.signature)
+        })
+        .collect();
+    let (bg, _) = frame_background(scene, &fwd, pix);
+    for (mut f, pw) in fwd.into_iter().zip(pix) {
+        f.terms[TERM_RGB] += f.t_final * dot(pw.rgb, bg);
         for t in 0..NUM_TERMS {
             ev.terms[t] += f.terms[t];
         }
@@ -288,10 +299,15 @@ pub fn grads_with(
         priority: vec![0.0; scene.num_voxels()],
     };
     let mut sig = Vec::new();
-    for (ray, pw) in rays.iter().zip(pix) {
-        let f = forward_pixel(scene, params, ray, k, pw, spec, None, &mut sig);
-        out.loss += f.terms.iter().sum::<f64>();
-        backward_pixel(scene, ray, k, pw, spec, &f, &mut out);
+    let fwd: Vec<PixelForward> = rays
+        .iter()
+        .zip(pix)
+        .map(|(ray, pw)| forward_pixel(scene, params, ray, k, pw, spec, None, &mut sig))
+        .collect();
+    let (bg, extra) = frame_background(scene, &fwd, pix);
+    for ((ray, pw), f) in rays.iter().zip(pix).zip(&fwd) {
+        out.loss += f.terms.iter().sum::<f64>() + f.t_final * dot(pw.rgb, bg);
+        backward_pixel(scene, ray, k, pw, spec, bg, extra, f, &mut out);
     }
     out
 }
@@ -359,6 +375,34 @@ struct Contrib {
 struct PixelForward {
     contribs: Vec<Contrib>,
     terms: [f64; NUM_TERMS],
+    /// The composited colour C = Σ w c (no background) and the final transmittance.
+    colour: [f64; 3],
+    t_final: f64,
+}
+
+/// The background behind every pixel of a frame: the scene's colour, or with
+/// `background_frame_mean` the frame's mean composited colour m = (1/N) Σ_p C_p, whose
+/// gradient reaches every pixel: out_p = C_p + T_p m gives, for the linear loss,
+/// ∂L/∂C_p = rgb_p + (1/N) Σ_q rgb_q T_q (returned as the extra C weight) and
+/// ∂L/∂T_p = rgb_p·m − alpha_p.
+fn frame_background(
+    scene: &Scene,
+    fwd: &[PixelForward],
+    pix: &[PixelWeights],
+) -> ([f64; 3], [f64; 3]) {
+    if !scene.background_frame_mean {
+        return (scene.background.map(|v| v as f64), [0.0; 3]);
+    }
+    let n = fwd.len() as f64;
+    let mut m = [0.0; 3];
+    let mut extra = [0.0; 3];
+    for (f, pw) in fwd.iter().zip(pix) {
+        for ch in 0..3 {
+            m[ch] += f.colour[ch] / n;
+            extra[ch] += pw.rgb[ch] * f.t_final / n;
+        }
+    }
+    (m, extra)
 }
 
 fn corner_values(scene: &Scene, params: &Params, i: usize) -> [f64; 8] {
@@ -515,19 +559,25 @@ fn forward_pixel(
         w_before += w;
         wm_before += w * m;
     }
-    for ch in 0..3 {
-        out_rgb[ch] += t * scene.background[ch] as f64;
-    }
+    // The rgb term without its background part, which the frame adds
+    // (`frame_background`).
     terms[TERM_RGB] = dot(pw.rgb, out_rgb);
     terms[TERM_ALPHA] = pw.alpha * (1.0 - t);
     terms[TERM_DEPTH] = pw.depth * (out_depth / ray.norm);
     terms[TERM_NORMAL] = dot(pw.normal, out_normal);
     terms[TERM_DIST] = spec.lambda_dist * dist;
     terms[TERM_POINT_RGB] = spec.lambda_r * point_rgb;
-    PixelForward { contribs, terms }
+    PixelForward {
+        contribs,
+        terms,
+        colour: out_rgb,
+        t_final: t,
+    }
 }
 
-/// Reverse mode for one pixel; accumulates into `out`.
+/// Reverse mode for one pixel; accumulates into `out`. `bg` is the frame's background
+/// and `extra` the weight its gradient adds to the composited colour C
+/// (`frame_background`): the rgb weight on C is `rgb + extra`, on `T_final` `rgb·bg`.
 ///
 /// With `g_k = ∂L/∂w_k` (w_k held as a variable: colour, normal, per-point RGB and the
 /// distortion's `u_k = ∂dist/∂w_k`), `D_k = depth_weight·dval_k/norm` (the term
@@ -541,9 +591,12 @@ fn backward_pixel(
     k: usize,
     pw: &PixelWeights,
     spec: &LossSpec,
+    bg: [f64; 3],
+    extra: [f64; 3],
     f: &PixelForward,
     out: &mut RefGrads,
 ) {
+    let crgb: [f64; 3] = std::array::from_fn(|ch| pw.rgb[ch] + extra[ch]);
     let cs = &f.contribs;
     let n = cs.len();
     let nc = scene.shs_per_voxel();
@@ -575,12 +628,11 @@ fn backward_pixel(
             .map(|ch| (c.rgb[ch] - pw.gt[ch]).powi(2))
             .sum::<f64>()
             / 3.0;
-        g[j] = dot(pw.rgb, c.rgb) + dot(pw.normal, c.n) + spec.lambda_r * r + spec.lambda_dist * u;
+        g[j] = dot(crgb, c.rgb) + dot(pw.normal, c.n) + spec.lambda_r * r + spec.lambda_dist * u;
         pw_sum += w[j];
         pwm_sum += w[j] * m[j];
     }
 
-    let bg = scene.background.map(|v| v as f64);
     let dd = pw.depth / ray.norm; // ∂L/∂(T_k dval_k)
     let mut acc = dot(pw.rgb, bg) - pw.alpha; // A_{k+1}
     for j in (0..n).rev() {
@@ -652,9 +704,7 @@ fn backward_pixel(
             }
             let diff = c.rgb[ch] - pw.gt[ch];
             let dc = w[j]
-                * (pw.rgb[ch]
-                    + spec.lambda_r * 2.0 / 3.0 * diff
-                    + spec.lambda_r_colour * 2.0 * diff);
+                * (crgb[ch] + spec.lambda_r * 2.0 / 3.0 * diff + spec.lambda_r_colour * 2.0 * diff);
             out.sh0[i][ch] += c.basis[0] * dc;
             for kk in 1..=nc {
                 out.shs[(i * nc + kk - 1) * 3 + ch] += c.basis[kk] * dc;

@@ -167,4 +167,5 @@ fn queued_frames_match_frames_rendered_one_by_one() {
 }
 
 mod against_reference;
+mod frame_mean;
 mod image_edges;

@@ -186,3 +186,46 @@ fn voxel_budget_follows_the_device_memory_budget() {
     assert_eq!(voxel_budget(&ctx, &cfg), 1234);
     finish(&ctx);
 }
+
+/// Training with the frame-mean background (`background_frame_mean`, SVRaster's for
+/// captures neither white nor black): the real preset's small run trains (val PSNR of
+/// the demo, whose photos are composited over black, above 14 dB), the model and its
+/// checkpoint keep the setting, and giving a colour turns it off.
+#[test]
+fn frame_mean_background_trains_and_is_kept() {
+    let ctx = context();
+    let dir = demo_data("frame-mean", 32);
+    let mut train = data::load_split(dir.path(), "train", 1.0, [0.0; 3]).unwrap();
+    let mut val = data::load_split(dir.path(), "val", 1.0, [0.0; 3]).unwrap();
+    let mut cfg = TrainConfig::preset("real").unwrap();
+    cfg.set("background_frame_mean=true").unwrap();
+    cfg.set("background=[0,0,0]").unwrap();
+    assert!(!cfg.background_frame_mean, "a colour given turns it off");
+    cfg.set("background_frame_mean=true").unwrap();
+    cfg.iters = 150;
+    cfg.grid_level = 4;
+    cfg.outside_level = 2;
+    cfg.ss = 1.0;
+    svraster::train::bounds::resolve_run(&mut cfg, &mut train).unwrap();
+    let mut tr = Trainer::new(&ctx, cfg.clone(), &train, None).unwrap();
+    for i in 0..cfg.iters {
+        tr.step(i + 1 == cfg.iters).unwrap();
+    }
+    let scene = tr.scene().unwrap();
+    assert!(scene.background_frame_mean);
+    val.to_model(&scene.world);
+    let psnr = mean_psnr(&ctx, &scene, &val);
+    println!(
+        "frame-mean background: val PSNR {psnr:.2} dB, {} voxels",
+        scene.num_voxels()
+    );
+    assert!(psnr > 14.0, "{psnr}");
+    let file = dir.path().join("fm.safetensors");
+    svraster::scene::checkpoint::save(&scene, &file).unwrap();
+    assert!(
+        svraster::scene::checkpoint::load(&file)
+            .unwrap()
+            .background_frame_mean
+    );
+    finish(&ctx);
+}

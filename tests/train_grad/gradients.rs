@@ -594,3 +594,114 @@ fn contracted_distortion_matches_reference_across_distance_one() {
     );
     finish(&ctx);
 }
+
+/// The frame-mean background (`Scene::background_frame_mean`): out_p = C_p + T_p·m with
+/// m the frame's mean C, so every pixel's rgb gradient reaches every other pixel's
+/// colour, (1/N) Σ_q T_q ∂L/∂out_q (raster/frame_mean.comp in the backward). Against the
+/// reference (itself checked against central differences, tests/reference_grad.rs) with
+/// every reduction, chunked and segmented, K = 1..3, a frame of two partial sums, and
+/// supersampled (the mean at render resolution).
+#[test]
+fn frame_mean_background_gradients_match_reference() {
+    let ctx = context();
+    let mut rng = Rng(0x6a4d_00f3);
+    let mut scene = random_scene(&mut rng, 6, 1);
+    for g in scene.geo.iter_mut() {
+        *g = (rng.range(-5.0, 2.0)) as f32;
+    }
+    scene.background = [0.8, 0.2, 0.6];
+    scene.background_frame_mean = true;
+    // 4 640 pixels: two of frame_mean.comp's partial sums (4 096 pixels each).
+    let mut cam = camera_outside(&mut rng, &scene, 80, 58);
+    while (1..=3).any(|k| ambiguous(&scene, &cam, k)) {
+        cam = camera_outside(&mut rng, &scene, 80, 58);
+    }
+    let np = (cam.width * cam.height) as usize;
+    let all = FrameOutputs {
+        normals: true,
+        distortion: true,
+        distortion_contracted: false,
+    };
+    let mut worst = [0.0f64; 4];
+    for k in 1..=3u32 {
+        let pix = random_weights(&mut rng, np, [true; 5]);
+        let spec = LossSpec {
+            lambda_dist: 0.5,
+            lambda_r: 0.5,
+            lambda_r_colour: 0.0,
+            dist_contracted: false,
+        };
+        let reference = grads(&scene, &cam, k as usize, &pix, &spec);
+        // The frame mean changes the gradients (the test sees it).
+        let mut plain = scene.clone();
+        plain.background_frame_mean = false;
+        let constant = grads(&plain, &cam, k as usize, &pix, &spec);
+        let moved = |a: &[f64], b: &[f64]| {
+            a.iter()
+                .zip(b)
+                .filter(|(x, y)| (*x - *y).abs() > 1e-3 * y.abs().max(1e-6))
+                .count()
+        };
+        let sh0 = |g: &common::reference_grad::RefGrads| -> Vec<f64> {
+            g.sh0.iter().flatten().copied().collect()
+        };
+        let (mg, ms) = (
+            moved(&reference.geo, &constant.geo),
+            moved(&sh0(&reference), &sh0(&constant)),
+        );
+        assert!(
+            mg > 10 && ms > 10,
+            "the frame mean moved {mg} density and {ms} colour gradients"
+        );
+        for red in reductions(&ctx) {
+            let g = gpu_grads(&ctx, &scene, &cam, k, &pix, &spec, red, Some(5));
+            compare(
+                &format!("frame mean K {k} {red:?} chunks of 5"),
+                &g,
+                &reference,
+                &mut worst,
+            );
+            let g = gpu_grads_segmented(
+                &ctx,
+                &scene,
+                &cam,
+                k,
+                &pix,
+                &spec,
+                red,
+                None,
+                1.0,
+                false,
+                all,
+                Some(3),
+            )
+            .unwrap();
+            compare(
+                &format!("frame mean K {k} {red:?} segments of 3"),
+                &g,
+                &reference,
+                &mut worst,
+            );
+        }
+    }
+    // Supersampled: the reference at render resolution with the output weights
+    // transposed through the downsample (the frame mean is a render-resolution mean).
+    let ss = 1.5f32;
+    let (rw, rh) = ((19.0 * ss).round() as u32, (14.0 * ss).round() as u32);
+    let mut cam = camera_outside(&mut rng, &scene, 19, 14);
+    while ambiguous(&scene, &cam.resized(rw, rh), 1) {
+        cam = camera_outside(&mut rng, &scene, 19, 14);
+    }
+    let pix = random_weights(&mut rng, (cam.width * cam.height) as usize, [true; 5]);
+    let spec = LossSpec::default();
+    let rpix = super::transpose_downsample(&pix, cam.width, cam.height, rw, rh);
+    let reference = grads(&scene, &cam.resized(rw, rh), 1, &rpix, &spec);
+    let red = default_reduction(&ctx);
+    let g = gpu_grads_ss(&ctx, &scene, &cam, 1, &pix, &spec, red, None, ss);
+    compare("frame mean ss 1.5", &g, &reference, &mut worst);
+    println!(
+        "worst relative errors: geo {:.2e} sh0 {:.2e} shs {:.2e} priority {:.2e}",
+        worst[0], worst[1], worst[2], worst[3]
+    );
+    finish(&ctx);
+}

@@ -83,6 +83,25 @@ fn svraster_checkpoints_render_as_the_model_they_hold() {
         (&scene.geo, &scene.sh0, &scene.shs)
     );
     println!("{frames} frames identical; imported: {out}");
+    // SVRaster's Mip-NeRF 360 background: each frame's own mean colour.
+    let fm = dir.path().join("fm.safetensors");
+    let (ok, out, err) = svraster(&[
+        "import",
+        pt.to_str().unwrap(),
+        "--out",
+        fm.to_str().unwrap(),
+        "--background",
+        "frame-mean",
+        "--json",
+    ]);
+    assert!(ok, "import: {err}");
+    let j: serde_json::Value = serde_json::from_str(out.trim()).unwrap();
+    assert_eq!(j["background"], "frame-mean");
+    assert!(
+        svraster::scene::checkpoint::load(&fm)
+            .unwrap()
+            .background_frame_mean
+    );
     // Refused.
     let p = pt.to_str().unwrap();
     let ms = m.to_str().unwrap();
@@ -95,7 +114,7 @@ fn svraster_checkpoints_render_as_the_model_they_hold() {
         (vec!["import", p, "--out", p], "name it *.safetensors"),
         (
             vec!["import", p, "--out", ms, "--background", "red"],
-            "expected white, black or R,G,B",
+            "expected white, black, frame-mean or R,G,B",
         ),
         (vec!["import", p, "--out", ms, "--ss", "9"], "--ss 9"),
         (

@@ -402,6 +402,7 @@ impl Topology {
             extent: host.extent,
             sh_degree: host.sh_degree,
             background: host.background,
+            background_frame_mean: host.background_frame_mean,
             supersample: host.supersample,
             world: host.world,
             octpath,
@@ -427,6 +428,7 @@ impl Topology {
             center: gpu.center,
             extent: gpu.extent,
             background: gpu.background,
+            background_frame_mean: gpu.background_frame_mean,
         };
         let moments = match (new_geo_mom, new_sh_mom) {
             (Some([gm, gv]), Some([sm, sv, hm, hv])) => Some([gm, gv, sm, sv, hm, hv]),

@@ -40,6 +40,7 @@
 //! | `scene_extent` | number: full edge length of the root cube in world units   |
 //! | `sh_degree`    | `0`, `1`, `2` or `3`                                        |
 //! | `background`   | JSON array `[r,g,b]`: background colour                     |
+//! | `background_mode` | `frame_mean` (optional: `colour`): composite each frame's own mean colour instead (`Scene::background_frame_mean`) |
 //! | `supersample`  | number in [1, 8]: default render supersampling (optional: 1) |
 //! | `world_center` | JSON array `[x,y,z]` (optional: `[0,0,0]`); with `world_scale` (optional: 1) the capture's frame: model = (world − world_center) / world_scale; cameras of the capture are mapped so before rendering, depths scale back by `world_scale` |
 //! | `world_scale`  | number > 0 (optional: 1), written as f64 text               |
@@ -87,6 +88,11 @@ use crate::error::{Error, Result};
 
 /// Value of the `format` metadata key.
 pub const FORMAT: &str = "svraster-vk/1";
+
+/// Value of the optional `background_mode` metadata key for a frame-mean background.
+const BACKGROUND_FRAME_MEAN: &str = "frame_mean";
+/// Its default: the `background` colour.
+const BACKGROUND_COLOUR: &str = "colour";
 
 /// Largest accepted JSON header (the same bound the safetensors library uses).
 pub const MAX_HEADER_BYTES: u64 = 100_000_000;
@@ -253,6 +259,9 @@ fn encode_header_for(
     meta.insert("sh_degree".into(), scene.sh_degree.to_string().into());
     meta.insert("background".into(), vec3(scene.background).into());
     meta.insert("supersample".into(), num(scene.supersample).into());
+    if scene.background_frame_mean {
+        meta.insert("background_mode".into(), BACKGROUND_FRAME_MEAN.into());
+    }
     if quantized {
         meta.insert("quantized".into(), QUANTIZED.into());
     }

@@ -115,6 +115,7 @@ struct Meta {
     center: [f32; 3],
     extent: f32,
     background: [f32; 3],
+    background_frame_mean: bool,
     supersample: f32,
     world: WorldFrame,
 }
@@ -186,6 +187,20 @@ fn metadata(top: &Entries<Entries<Value>>) -> Msg<Meta> {
         return Err(format!("metadata `scene_extent` is {extent}, must be > 0"));
     }
     let background = parse_vec3::<f32>("background", meta_str("background")?)?;
+    let background_frame_mean = match meta.get("background_mode") {
+        None => false,
+        Some(_) => match meta_str("background_mode")? {
+            super::BACKGROUND_FRAME_MEAN => true,
+            super::BACKGROUND_COLOUR => false,
+            m => {
+                return Err(format!(
+                    "metadata `background_mode` is `{m}`, expected `{}` or `{}`",
+                    super::BACKGROUND_COLOUR,
+                    super::BACKGROUND_FRAME_MEAN
+                ))
+            }
+        },
+    };
     // Optional (files written before it existed render without supersampling).
     let supersample = match meta.get("supersample") {
         None => 1.0,
@@ -219,6 +234,7 @@ fn metadata(top: &Entries<Entries<Value>>) -> Msg<Meta> {
         center,
         extent,
         background,
+        background_frame_mean,
         supersample,
         world,
     })
@@ -460,6 +476,7 @@ fn build_scene(meta: Meta, d: Decoded) -> Msg<Scene> {
         center,
         extent,
         background,
+        background_frame_mean,
         supersample,
         world,
         ..
@@ -485,6 +502,7 @@ fn build_scene(meta: Meta, d: Decoded) -> Msg<Scene> {
     }
     scene.sh_degree = sh_degree;
     scene.background = background;
+    scene.background_frame_mean = background_frame_mean;
     scene.supersample = supersample;
     scene.world = world;
     scene.geo = geo;

@@ -142,6 +142,24 @@ impl Backward {
         let rpix = frame.render_width * frame.render_height;
         self.prepare_k.dispatch_1d(cmd, &p2, rpix);
         recorder::barrier(&ctx, cmd);
+        if frame.frame_mean_background {
+            // The gradient through the frame's mean colour, into every pixel's C:
+            // (1/N) Σ_q T_q ∂L/∂out_q (raster/frame_mean.comp).
+            let fm = |mode, dst| FrameMeanPush {
+                frame: frame.params,
+                back: self.params.address(),
+                mode,
+                dst,
+            };
+            let groups = rpix.div_ceil(glsl::FM_PIXELS);
+            let k = &self.frame_mean;
+            k.dispatch_1d(cmd, &fm(glsl::FM_SUM_TGRAD, 0), groups * 256);
+            recorder::barrier(&ctx, cmd);
+            k.dispatch(cmd, &fm(glsl::FM_TOTAL, glsl::FM_SLOT_GRAD), [1, 1, 1]);
+            recorder::barrier(&ctx, cmd);
+            k.dispatch_1d(cmd, &fm(glsl::FM_APPLY, 0), rpix);
+            recorder::barrier(&ctx, cmd);
+        }
         if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "backward.prepare");
         }
