@@ -189,6 +189,13 @@ float host_t_far(FrameParams P, uvec2 pix, float rd_norm) {
 const uint FRAME_GENERIC_WALK = 1u, FRAME_NORMALS = 2u, FRAME_DISTORTION = 4u,
            FRAME_DIST_CONTRACT = 8u;
 
+// The background behind the frame's remaining transmittance: the constant `bg`, or with
+// `bgsum` the frame's mean composited colour (raster/frame_mean.comp, FM_SLOT_MEAN).
+vec3 frame_background(FrameParams P) {
+    if (uint64_t(P.bgsum) == 0ul) return P.bg;
+    return vec3(P.bgsum.v[FM_SLOT_MEAN], P.bgsum.v[FM_SLOT_MEAN + 1u], P.bgsum.v[FM_SLOT_MEAN + 2u]);
+}
+
 // Whether the frame accumulates normals / distortion sums (uniform branches). The
 // NO_NORMALS kernel variants (build.rs), which the host picks for frames without
 // normals, know it at compile time: the compiler then drops the normal state and work

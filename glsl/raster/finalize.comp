@@ -26,10 +26,7 @@ void main() {
 
     float T = P.img.v[CH_T * npix + p];
     P.aux.v[AUX_T * npix + p] = T;
-    vec3 bg = P.bg;
-    if (uint64_t(P.bgsum) != 0ul) {
-        bg = vec3(P.bgsum.v[FM_SLOT_MEAN], P.bgsum.v[FM_SLOT_MEAN + 1u], P.bgsum.v[FM_SLOT_MEAN + 2u]);
-    }
+    vec3 bg = frame_background(P);
     for (uint c = 0u; c < 3u; ++c) P.img.v[c * npix + p] += T * bg[c];
     P.img.v[CH_T * npix + p] = 1.0 - T;
     P.img.v[CH_DEPTH * npix + p] /= rd_norm;

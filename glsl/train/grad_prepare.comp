@@ -69,10 +69,7 @@ void main() {
     // With the frame-mean background (P.bgsum), bg is that frame's mean m; the part of
     // the gradient that flows through m into every pixel's C is added afterwards
     // (frame_mean.comp, FM_SUM_TGRAD → FM_TOTAL → FM_APPLY).
-    vec3 bg = P.bg;
-    if (uint64_t(P.bgsum) != 0ul) {
-        bg = vec3(P.bgsum.v[FM_SLOT_MEAN], P.bgsum.v[FM_SLOT_MEAN + 1u], P.bgsum.v[FM_SLOT_MEAN + 2u]);
-    }
+    vec3 bg = frame_background(P);
     B.dimg.v[DI_T * npix + p] = dot(bg, drgb) - acc[DO_ALPHA];
     B.dimg.v[DI_DEPTH * npix + p] = acc[DO_DEPTH];
     B.dimg.v[DI_NX * npix + p] = acc[DO_NX];
