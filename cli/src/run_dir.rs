@@ -2,7 +2,7 @@
 //! (model.safetensors + optimizer.safetensors) written so that a failure never loses the last
 //! good one, the log truncation on resume, and the stop signals.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use anyhow::{bail, Context as _};
@@ -36,10 +36,17 @@ pub(super) fn catch_signals() -> anyhow::Result<()> {
         .map_err(|e| anyhow::anyhow!("cannot install the Ctrl-C/SIGTERM handler: {e}"))
 }
 
-/// Locks `run` (an existing directory) for this process: an advisory lock on
-/// `run/.lock`, released when the returned file is dropped or the process dies. A second
-/// `train`/`demo` into the same directory fails at once instead of mixing two runs.
-pub(super) fn lock_run(run: &Path) -> anyhow::Result<std::fs::File> {
+/// A run directory locked by this process ([`lock_run`]): the advisory lock on
+/// `run/.lock`, released when this is dropped or the process dies.
+pub(super) struct RunLock {
+    file: std::fs::File,
+    path: PathBuf,
+    run: PathBuf,
+}
+
+/// Locks `run` (an existing directory) for this process: a second `train`/`demo` into the
+/// same directory fails at once instead of mixing two runs.
+pub(super) fn lock_run(run: &Path) -> anyhow::Result<RunLock> {
     let path = run.join(".lock");
     let f = std::fs::OpenOptions::new()
         .create(true)
@@ -48,7 +55,11 @@ pub(super) fn lock_run(run: &Path) -> anyhow::Result<std::fs::File> {
         .open(&path)
         .with_context(|| format!("cannot open the run lock {}", path.display()))?;
     match f.try_lock() {
-        Ok(()) => Ok(f),
+        Ok(()) => Ok(RunLock {
+            file: f,
+            path,
+            run: run.to_path_buf(),
+        }),
         Err(std::fs::TryLockError::WouldBlock) => bail!(
             "{} is in use: another svraster process is training in it; wait for it to \
              finish (or stop it), or choose another --out",
@@ -57,6 +68,48 @@ pub(super) fn lock_run(run: &Path) -> anyhow::Result<std::fs::File> {
         Err(std::fs::TryLockError::Error(e)) => {
             bail!("cannot lock {}: {e}", path.display())
         }
+    }
+}
+
+impl RunLock {
+    /// Whether `run/.lock` is still the file this process locked: false once the run
+    /// directory was removed, moved or replaced (removed and made again, say by another
+    /// run into the same --out) while this process held it.
+    fn held(&self) -> bool {
+        let Ok(now) = std::fs::metadata(&self.path) else {
+            return false;
+        };
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::MetadataExt;
+            match self.file.metadata() {
+                // A removed lock file has no links left (and its inode number may be
+                // reused by a new file at the same path).
+                Ok(ours) => ours.nlink() > 0 && ours.dev() == now.dev() && ours.ino() == now.ino(),
+                Err(_) => false,
+            }
+        }
+        #[cfg(not(unix))]
+        {
+            // Elsewhere a directory with open files in it cannot be removed or moved.
+            now.is_file()
+        }
+    }
+
+    /// Fails, naming the directory and what to do, when the run directory is no longer
+    /// the one this process locked ([`RunLock::held`]): a run then stops without writing
+    /// anything more, so that it never mixes with whatever is at that path now.
+    pub(super) fn check(&self, iter: u32) -> anyhow::Result<()> {
+        if self.held() {
+            return Ok(());
+        }
+        bail!(
+            "the run directory {} was removed, moved or replaced while this run trained \
+             (now at iteration {iter}): stopped without writing to it, so that nothing mixes \
+             with what is there now. A moved run continues from its last checkpoint with \
+             --resume and --out at its new place; otherwise start the run again",
+            self.run.display()
+        )
     }
 }
 
@@ -156,7 +209,8 @@ fn sorted_header(mut bytes: Vec<u8>) -> anyhow::Result<Vec<u8>> {
 /// previous pair stays as it was), then renamed, optimizer first. A crash between the two
 /// renames leaves the new optimizer state beside `model.safetensors.tmp`, which
 /// `--resume` recognises by its hash and completes.
-pub(super) fn save_run(run: &Path, trainer: &mut Trainer) -> anyhow::Result<()> {
+pub(super) fn save_run(run: &Path, lock: &RunLock, trainer: &mut Trainer) -> anyhow::Result<()> {
+    lock.check(trainer.iter())?;
     let scene = trainer.scene()?;
     let model = checkpoint::to_bytes(&scene)?;
     let state = trainer.optimizer_state()?;

@@ -157,7 +157,7 @@ pub(super) fn canonical(p: &Path) -> PathBuf {
 pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     let run = &a.out;
     let cfg_path = run.join("config.json");
-    let mut _lock = None;
+    let mut lock = None;
     let mut extended = false;
     let mut moved: Option<(PathBuf, Option<String>)> = None;
     let (mut cfg, init, opt_state, start_iter, preset, downscale, source) = if a.resume {
@@ -170,7 +170,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
                 cfg_path.display()
             );
         }
-        _lock = Some(lock_run(run)?);
+        lock = Some(lock_run(run)?);
         let text = std::fs::read_to_string(&cfg_path)
             .with_context(|| format!("cannot read {}", cfg_path.display()))?;
         let v: serde_json::Value = serde_json::from_str(&text)
@@ -331,12 +331,12 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             ),
         }
     }
-    if _lock.is_none() {
+    if lock.is_none() {
         // A new run: everything is validated; now the directory, locked before anything
         // is written into it (and checked again under the lock).
         std::fs::create_dir_all(run)
             .with_context(|| format!("cannot create run directory {}", run.display()))?;
-        _lock = Some(lock_run(run)?);
+        lock = Some(lock_run(run)?);
         if has_checkpoint(run) {
             bail!(
                 "{} already holds a run: pass --resume to continue it, or choose another --out",
@@ -476,7 +476,8 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         }
         None => None,
     };
-    let summary = train_loop(&mut trainer, run, long_run, held.as_ref())?;
+    let lock = lock.expect("the run directory is locked above");
+    let summary = train_loop(&mut trainer, run, &lock, long_run, held.as_ref())?;
     Ok(summary)
 }
 

@@ -14,7 +14,7 @@ use svraster::raster::RenderOptions;
 use svraster::train::trainer::Trainer;
 
 use super::progress::{fmt_duration, Progress, RateWindow};
-use super::run_dir::{catch_signals, save_run, INTERRUPTS};
+use super::run_dir::{catch_signals, save_run, RunLock, INTERRUPTS};
 
 /// The queue traffic since `last` (counters, iteration), per iteration, for stats.jsonl:
 /// submissions, fence waits that drained the queue, throttle waits, milliseconds blocked.
@@ -130,6 +130,7 @@ impl LongRun {
 pub(super) fn train_loop(
     trainer: &mut Trainer,
     run: &Path,
+    lock: &RunLock,
     mut long_run: Option<LongRun>,
     held: Option<&HeldOut>,
 ) -> anyhow::Result<RunSummary> {
@@ -160,7 +161,7 @@ pub(super) fn train_loop(
     while trainer.iter() < cfg.iters {
         if INTERRUPTS.load(Ordering::SeqCst) > 0 {
             progress.finish();
-            save_run(run, trainer)?;
+            save_run(run, lock, trainer)?;
             curves(run);
             eprintln!(
                 "interrupted: saved iteration {} to {}; continue with --resume",
@@ -190,6 +191,9 @@ pub(super) fn train_loop(
             shown = Some(l);
         }
         if let Some(l) = info.losses.filter(|_| logged) {
+            // The log goes to the file opened at the start: a run whose directory is
+            // gone (or is another run's now) stops here instead of training into nowhere.
+            lock.check(info.iter)?;
             let el = elapsed_before + t0.elapsed().as_secs_f64();
             let line = serde_json::json!({
                 "iter": info.iter,
@@ -234,7 +238,7 @@ pub(super) fn train_loop(
         }
         if sched.checkpoints.contains(&info.iter) {
             trainer.check_finite()?;
-            save_run(run, trainer)?;
+            save_run(run, lock, trainer)?;
             curves(run);
         }
         let done = info.iter == cfg.iters;
@@ -262,7 +266,7 @@ pub(super) fn train_loop(
     }
     progress.finish();
     trainer.check_finite()?;
-    save_run(run, trainer)?;
+    save_run(run, lock, trainer)?;
     curves(run);
     let secs = t0.elapsed().as_secs_f64();
     let layout = if cfg.outside_level > 0 {

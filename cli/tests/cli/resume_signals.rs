@@ -181,6 +181,89 @@ fn sigterm_saves_runs_are_locked_and_stats_are_truncated_on_resume() {
     );
 }
 
+/// A run whose directory is removed, or moved and replaced by another, while it trains
+/// stops at its next logged step with an error naming the directory, and writes nothing
+/// at that path afterwards (no re-created directory, nothing mixed into another run's).
+#[test]
+fn a_run_whose_directory_is_removed_or_replaced_stops_without_writing_there() {
+    let dir = tmp("run-removed");
+    let data = small_data(dir.path(), "data", 4);
+    let ds = data.to_str().unwrap();
+    for replace in [false, true] {
+        let run = dir.path().join(format!("run-{replace}"));
+        let rs = run.to_str().unwrap();
+        let mut child = Command::new(env!("CARGO_BIN_EXE_svraster"))
+            .args([
+                "train",
+                ds,
+                "--out",
+                rs,
+                "--preset",
+                "quick",
+                "--iters",
+                "1000000",
+                "--set",
+                "grid_level=3",
+                "--set",
+                "log_every=5",
+            ])
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let t0 = std::time::Instant::now();
+        while logged(&run).len() < 2 {
+            assert!(t0.elapsed().as_secs() < 300, "training did not start");
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        }
+        let moved = dir.path().join(format!("moved-{replace}"));
+        if replace {
+            // Moved away, and a new directory (with a lock file of its own, as another
+            // run's) made at the old path.
+            std::fs::rename(&run, &moved).unwrap();
+            std::fs::create_dir(&run).unwrap();
+            std::fs::write(run.join(".lock"), b"").unwrap();
+            std::fs::write(run.join("mine"), b"another run").unwrap();
+        } else {
+            std::fs::remove_dir_all(&run).unwrap();
+        }
+        // It stops soon (the next logged step), not at the end of a million iterations.
+        let t1 = std::time::Instant::now();
+        let status = loop {
+            if let Some(st) = child.try_wait().unwrap() {
+                break st;
+            }
+            if t1.elapsed().as_secs() > 120 {
+                child.kill().unwrap();
+                panic!("the run went on training after its directory was removed or replaced (replace: {replace})");
+            }
+            std::thread::sleep(std::time::Duration::from_millis(100));
+        };
+        let mut err = String::new();
+        std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+        assert!(!status.success(), "{err}");
+        assert!(
+            err.contains("was removed, moved or replaced") && err.contains(rs),
+            "{err}"
+        );
+        if replace {
+            let mut names: Vec<String> = std::fs::read_dir(&run)
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect();
+            names.sort();
+            assert_eq!(
+                names,
+                [".lock", "mine"],
+                "written into the replacing directory"
+            );
+            // The moved run keeps the log it wrote.
+            assert!(logged(&moved).len() >= 2);
+        } else {
+            assert!(!run.exists(), "the removed run directory was made again");
+        }
+    }
+}
+
 /// `demo --out` never deletes what it did not create, and checks its arguments before
 /// writing anything.
 #[test]
