@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::{bail, Context as _};
 use svraster::data;
-use svraster::eval::EvalReport;
+use svraster::eval::{EvalReport, Timing};
 use svraster::gpu::Context;
 use svraster::raster::RenderOptions;
 use svraster::scene::{checkpoint, Scene};
@@ -514,9 +514,16 @@ pub fn evaluate(
     } else {
         Progress::new(&format!("eval {split}"), ds.frames.len() as u64)
     };
-    let rep = svraster::eval::evaluate(ctx, scene, &ds, opts, |i, _, name, p, s| {
-        progress.update(i as u64, || format!("{name}: PSNR {p:.2} SSIM {s:.4}"));
-    })?;
+    let rep = svraster::eval::evaluate(
+        ctx,
+        scene,
+        &ds,
+        opts,
+        Timing::Measured,
+        |i, _, name, p, s| {
+            progress.update(i as u64, || format!("{name}: PSNR {p:.2} SSIM {s:.4}"));
+        },
+    )?;
     progress.finish();
     Ok(rep)
 }
@@ -548,7 +555,7 @@ pub fn run_eval(
             opts.supersample,
             rep.psnr,
             rep.ssim,
-            rep.ms_per_frame
+            rep.ms_per_frame.unwrap_or(f64::NAN)
         );
     }
     Ok(())

@@ -86,6 +86,7 @@ impl HeldOut {
             &scene,
             &self.ds,
             &RenderOptions::for_scene(&scene),
+            svraster::eval::Timing::Skipped,
             |_, _, _, _, _| {},
         )?;
         let secs = t.elapsed().as_secs_f64();

@@ -4,8 +4,8 @@
 //! - [`psnr`]: on [0, 1] RGB, both images clamped first (as when saved to 8-bit PNG).
 //! - [`ssim::ssim`]: the 3DGS/SVRaster SSIM (11×11 Gaussian, σ 1.5) in f64, on clamped
 //!   images.
-//! - [`evaluate`]: renders every frame of a dataset split and reports their means and
-//!   the median frame time.
+//! - [`evaluate`]: renders every frame of a dataset split and reports their means and,
+//!   when asked, the median frame time.
 
 pub mod ssim;
 
@@ -60,8 +60,8 @@ pub struct EvalReport {
     pub ssim: f64,
     pub views: usize,
     /// Median render time per frame: frames queued behind each other, image read-back
-    /// included, scoring excluded (after a warm-up frame).
-    pub ms_per_frame: f64,
+    /// included, scoring excluded (after a warm-up frame); `None` when not timed.
+    pub ms_per_frame: Option<f64>,
     pub split: String,
     /// Largest frame width and height (the frames' own where `sizes_differ`).
     pub width: u32,
@@ -75,14 +75,27 @@ pub struct EvalReport {
     pub per_view: Vec<(String, f64, f64)>,
 }
 
+/// Whether [`evaluate`] measures the frame time.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Timing {
+    /// The views are rendered twice: once queued back to back for the frame time
+    /// (nothing done on the frames, so scoring on the host, which shares a CPU device's
+    /// cores, does not slow it), once for the scores.
+    Measured,
+    /// Only the scores (the held-out curve during training): each view rendered once.
+    Skipped,
+}
+
 /// Renders every frame of `ds` with `scene` and compares it with the photo: mean
-/// [`psnr`] and [`ssim::ssim`], median frame time. `progress` is called after each view
-/// with (views done, views in all, the view's name, its PSNR, its SSIM).
+/// [`psnr`] and [`ssim::ssim`], and with [`Timing::Measured`] the median frame time.
+/// `progress` is called after each view with (views done, views in all, the view's
+/// name, its PSNR, its SSIM).
 pub fn evaluate(
     ctx: &Context,
     scene: &Scene,
     ds: &Dataset,
     opts: &RenderOptions,
+    timing: Timing,
     mut progress: impl FnMut(usize, usize, &str, f64, f64),
 ) -> Result<EvalReport> {
     if ds.frames.is_empty() {
@@ -103,12 +116,14 @@ pub fn evaluate(
     // between consecutive frames handed over with nothing done on them — the render
     // throughput, image read-back included, scoring excluded.
     let mut times = Vec::new();
-    let mut t = Instant::now();
-    r.render_each(&gpu, &cams, opts, |_, _, _| {
-        times.push(t.elapsed().as_secs_f64() * 1e3);
-        t = Instant::now();
-        Ok(())
-    })?;
+    if timing == Timing::Measured {
+        let mut t = Instant::now();
+        r.render_each(&gpu, &cams, opts, |_, _, _| {
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+            t = Instant::now();
+            Ok(())
+        })?;
+    }
     // Scoring (on the host, while the next frame renders).
     let mut per_view = Vec::new();
     r.render_each(&gpu, &cams, opts, |i, img, _| {
@@ -129,7 +144,7 @@ pub fn evaluate(
         psnr: per_view.iter().map(|v| v.1).sum::<f64>() / n,
         ssim: per_view.iter().map(|v| v.2).sum::<f64>() / n,
         views: per_view.len(),
-        ms_per_frame: median(&times),
+        ms_per_frame: (timing == Timing::Measured).then(|| median(&times)),
         split: ds.split.clone(),
         width: ds.width,
         height: ds.height,

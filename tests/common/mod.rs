@@ -240,6 +240,7 @@ pub fn mean_psnr(ctx: &Context, scene: &Scene, ds: &svraster::data::Dataset) -> 
         scene,
         ds,
         &svraster::raster::RenderOptions::default(),
+        svraster::eval::Timing::Skipped,
         |_, _, _, _, _| {},
     )
     .unwrap()

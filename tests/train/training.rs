@@ -177,6 +177,19 @@ fn training_smoke_test_on_the_demo_scene() {
     assert!(after > before + 6.0, "val PSNR {before:.2} → {after:.2}");
     assert!(after > 17.0, "val PSNR {after:.2}");
     assert!(last.loss < 0.5 * first.loss);
+    // The scores do not depend on whether the frame time is measured (the held-out
+    // curve during training skips it and renders each view once).
+    let opts = svraster::raster::RenderOptions::default();
+    let eval = |timing| {
+        svraster::eval::evaluate(&ctx, &scene, &val, &opts, timing, |_, _, _, _, _| {}).unwrap()
+    };
+    let (timed, untimed) = (
+        eval(svraster::eval::Timing::Measured),
+        eval(svraster::eval::Timing::Skipped),
+    );
+    assert!(timed.ms_per_frame.is_some_and(|ms| ms > 0.0) && untimed.ms_per_frame.is_none());
+    assert_eq!(timed.per_view, untimed.per_view);
+    assert_eq!(untimed.psnr, after);
     finish(&ctx);
 }
 
@@ -235,6 +248,7 @@ fn frames_of_different_sizes_train_and_evaluate_together() {
             &scene,
             ds,
             &svraster::raster::RenderOptions::default(),
+            svraster::eval::Timing::Skipped,
             |_, _, _, _, _| {},
         )
         .unwrap()

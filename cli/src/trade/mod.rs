@@ -452,7 +452,7 @@ fn run_variant(
         psnr: rep.psnr,
         ssim: rep.ssim,
         train_s: summary.seconds,
-        ms_per_frame: rep.ms_per_frame,
+        ms_per_frame: rep.ms_per_frame.unwrap_or(f64::NAN),
         budget_capped: budget_capped(&run)?,
         front_train: false,
         front_render: false,
