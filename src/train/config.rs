@@ -315,8 +315,8 @@ pub const PRESETS: &[(&str, &str)] = &[
         "real",
         "real captures, unbounded (Mip-NeRF 360-like; the default for COLMAP data): main \
          region from the cameras, 5 background shell levels holding twice the main \
-         region's voxels, the photos' mean colour behind them, distortion loss 0.1 from \
-         half the run, no \
+         region's voxels, the photos' mean colour behind them, no distortion loss (it \
+         cost quality on every test view of the captures measured) and no \
          transmittance-concentration loss, inside loss mean(T²) 0.01",
     ),
     (
@@ -406,15 +406,14 @@ impl TrainConfig {
                 c.bound = "auto".into();
                 c.outside_level = if name == "real" { 5 } else { 2 };
                 c.background = [0.0; 3];
-                // The paper's distortion loss, on the ray distance. It costs quality on
-                // both real captures measured (docs/PARITY.md item 8): on the garden
-                // (`real`, 128², 3 000 iterations, 24 test views) 26.57 dB with it and
-                // 27.64 without, better on every view (+0.24 to +1.83 dB, for 2.2× the
-                // voxels and 2.1× the frame time), so `real` drops it; on llff_flower
-                // (`forward`) 28.66 vs 29.67 dB at 126×95 and 24.32 vs 25.00 at 252×189,
-                // every view better, but `forward` keeps it until the pair is run at
-                // the real-captures size, 504×378.
-                c.lambda_dist = if name == "real" { 0.0 } else { 0.1 };
+                // No distortion loss (the paper's 0.1 is `--set lambda_dist=0.1`): it
+                // costs quality on both real captures measured (docs/PARITY.md item 8),
+                // on every test view, at the real-captures sizes and 3 000 iterations:
+                // the garden (`real`, 128², 24 views) 27.64 dB without, 26.57 with (+0.24
+                // to +1.83 dB per view, 2.2× the voxels, 2.1× the frame time);
+                // llff_flower (`forward`, 504×378, 5 views) 28.30 without, 27.39 with
+                // (+0.55 to +1.31 dB, 1.17× the voxels, 1.22× the frame time).
+                c.lambda_dist = 0.0;
                 // The reference's Mip-NeRF 360 configuration: no transmittance
                 // concentration (an object-on-background prior; the shells fill the
                 // background here).
