@@ -110,31 +110,7 @@ fn sigterm_saves_runs_are_locked_and_stats_are_truncated_on_resume() {
     let ds = data.to_str().unwrap();
     let run = dir.path().join("run");
     let rs = run.to_str().unwrap();
-    let child = Command::new(env!("CARGO_BIN_EXE_svraster"))
-        .args([
-            "train",
-            ds,
-            "--out",
-            rs,
-            "--preset",
-            "quick",
-            "--iters",
-            "100000",
-            "--set",
-            "grid_level=3",
-            "--set",
-            "log_every=5",
-            "--set",
-            "checkpoint_every=0",
-        ])
-        .stderr(std::process::Stdio::piped())
-        .spawn()
-        .unwrap();
-    let t0 = std::time::Instant::now();
-    while logged(&run).len() < 2 {
-        assert!(t0.elapsed().as_secs() < 300, "training did not start");
-        std::thread::sleep(std::time::Duration::from_millis(100));
-    }
+    let child = spawn_training(ds, &run, "100000", &["--set", "checkpoint_every=0"]);
     // Locked: a second process fails at once, whatever it asks.
     let (ok, _, err) = svraster(&["train", ds, "--out", rs, "--resume"]);
     assert!(!ok && err.contains("in use"), "{err}");
@@ -181,6 +157,42 @@ fn sigterm_saves_runs_are_locked_and_stats_are_truncated_on_resume() {
     );
 }
 
+/// Starts a long quick-preset training of `data` into `run` in the background (level-3
+/// grid, a log line every 5 iterations, stderr piped) and returns once it has logged two
+/// lines.
+fn spawn_training(
+    data: &str,
+    run: &std::path::Path,
+    iters: &str,
+    extra: &[&str],
+) -> std::process::Child {
+    let child = Command::new(env!("CARGO_BIN_EXE_svraster"))
+        .args([
+            "train",
+            data,
+            "--out",
+            run.to_str().unwrap(),
+            "--preset",
+            "quick",
+            "--iters",
+            iters,
+            "--set",
+            "grid_level=3",
+            "--set",
+            "log_every=5",
+        ])
+        .args(extra)
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    while logged(run).len() < 2 {
+        assert!(t0.elapsed().as_secs() < 300, "training did not start");
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    child
+}
+
 /// A run whose directory is removed, or moved and replaced by another, while it trains
 /// stops at its next logged step with an error naming the directory, and writes nothing
 /// at that path afterwards (no re-created directory, nothing mixed into another run's).
@@ -192,29 +204,7 @@ fn a_run_whose_directory_is_removed_or_replaced_stops_without_writing_there() {
     for replace in [false, true] {
         let run = dir.path().join(format!("run-{replace}"));
         let rs = run.to_str().unwrap();
-        let mut child = Command::new(env!("CARGO_BIN_EXE_svraster"))
-            .args([
-                "train",
-                ds,
-                "--out",
-                rs,
-                "--preset",
-                "quick",
-                "--iters",
-                "1000000",
-                "--set",
-                "grid_level=3",
-                "--set",
-                "log_every=5",
-            ])
-            .stderr(std::process::Stdio::piped())
-            .spawn()
-            .unwrap();
-        let t0 = std::time::Instant::now();
-        while logged(&run).len() < 2 {
-            assert!(t0.elapsed().as_secs() < 300, "training did not start");
-            std::thread::sleep(std::time::Duration::from_millis(100));
-        }
+        let mut child = spawn_training(ds, &run, "1000000", &[]);
         let moved = dir.path().join(format!("moved-{replace}"));
         if replace {
             // Moved away, and a new directory (with a lock file of its own, as another
