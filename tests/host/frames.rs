@@ -301,6 +301,8 @@ fn frames_in_flight_grow_and_stay_clean() {
     let mut hr = HostRenderer::new(&ctx, FLIGHT as u32).unwrap();
     // Small composite chunks: each slot's first frame is short of chunks and grows.
     hr.set_chunk_size(16);
+    // Chunks split the unsegmented walk; a GPU's default segments never run short.
+    hr.set_segment_entries(0);
     let npix = (W * H) as u64;
     let usage = vk::BufferUsageFlags::TRANSFER_DST;
     let cmds = host.command_buffers(FLIGHT as u32);

@@ -124,13 +124,19 @@ fn queued_frames_match_frames_rendered_one_by_one() {
         samples: 1,
         supersample: 1.5,
     };
+    // Chunks split the unsegmented walk (CPU devices, `--segments 0`); a GPU's default
+    // segments never run short of them, so both renderers walk unsegmented here (the
+    // comparison is bit for bit) and the small chunks make frames incomplete on every
+    // device.
     let mut one = Renderer::new(&ctx).unwrap();
+    one.set_segment_entries(0);
     let want: Vec<Image> = cams
         .iter()
         .map(|c| one.render(&gpu, c, &opts).unwrap().0)
         .collect();
     let mut r = Renderer::new(&ctx).unwrap();
     r.set_chunk_size(40);
+    r.set_segment_entries(0);
     for pass in 0..2 {
         let c0 = ctx.queue_counters();
         let grown0 = r.frames_grown();
@@ -160,7 +166,9 @@ fn queued_frames_match_frames_rendered_one_by_one() {
             assert_eq!(grown, 0);
             assert_eq!(c.submits, cams.len() as u64);
             assert_eq!(c.fence_waits, 1, "only the last frame drains the queue");
-            assert_eq!(c.throttle_waits, cams.len() as u64 - 1);
+            // Each frame waits at most for the one before it; on a fast device that
+            // one may be done already (the H200 waited 5 times of 7 in the full suite).
+            assert!(c.throttle_waits < cams.len() as u64, "{c:?}");
         }
     }
     finish(&ctx);
