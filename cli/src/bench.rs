@@ -46,7 +46,8 @@ pub enum BenchCmd {
         #[arg(long)]
         ss: Option<f32>,
         /// Entries per segment of a tile's list in the composite (0: segments off;
-        /// default: the device's, 0 on CPU devices, 2048 on GPUs).
+        /// default: the device's: 0 on CPU devices; on GPUs chosen per frame from its tile
+        /// count, 256 to 2048, raster::auto_segment_entries).
         #[arg(long)]
         segments: Option<u32>,
         #[arg(long)]
@@ -72,7 +73,8 @@ pub enum BenchCmd {
         #[arg(long, default_value_t = 3)]
         warmup: u32,
         /// Entries per segment of a tile's list in the composite (0: segments off;
-        /// default: the device's, 0 on CPU devices, 2048 on GPUs).
+        /// default: the device's: 0 on CPU devices; on GPUs chosen per frame from its tile
+        /// count, 256 to 2048, raster::auto_segment_entries).
         #[arg(long)]
         segments: Option<u32>,
         #[arg(long)]

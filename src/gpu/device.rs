@@ -81,12 +81,28 @@ impl DeviceInfo {
     /// share a long list, so a small image's few tiles still fill the device; 2048 is
     /// a first choice, not yet measured against others on a GPU. Off on CPU devices,
     /// whose few threads the tiles already keep busy (the extra pass would only cost).
+    /// `SVRASTER_SEGMENTS=N` overrides the default on any device, so that a CPU device
+    /// can run the suite with a GPU's segmented walks (tests that assume a device's
+    /// defaults show up on lavapipe).
     pub fn segment_entries(&self) -> u32 {
+        if let Some(n) = std::env::var("SVRASTER_SEGMENTS")
+            .ok()
+            .and_then(|v| v.trim().parse::<u32>().ok())
+        {
+            return n;
+        }
         if self.is_cpu {
             0
         } else {
             2048
         }
+    }
+
+    /// Whether a frame's segment length follows its tile count (at most
+    /// [`DeviceInfo::segment_entries`]; `raster::auto_segment_entries`): on GPUs, unless
+    /// `SVRASTER_SEGMENTS` fixes it.
+    pub fn segments_adapt(&self) -> bool {
+        !self.is_cpu && std::env::var_os("SVRASTER_SEGMENTS").is_none()
     }
 
     /// Entries per backward dispatch: the per-entry work has more loops than the

@@ -43,6 +43,7 @@ use params::{FrameOkPush, FrameParams};
 use plan::Plan;
 pub use plan::{FrameGeometry, FrameOutputs};
 pub use readback::{FrameCheck, FrameStats, Gate, Image, CHECK_SLOTS};
+pub use segments::auto_segment_entries;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
@@ -185,9 +186,12 @@ pub struct Renderer {
     bgsum: GrowBuffer,
     /// Host-visible copies of queued frames' images ([`Renderer::render_each`]).
     image_slots: [GrowBuffer; 2],
-    /// Entries per segment (0: segments off; [`Renderer::set_segment_entries`]), the
-    /// slots the segment buffers hold, slot → tile, and the slots' per-pixel state.
+    /// Entries per segment (0: segments off; [`Renderer::set_segment_entries`]), or
+    /// with `seg_auto` the longest a frame's tile count may choose
+    /// ([`auto_segment_entries`]), the slots the segment buffers hold, slot → tile, and
+    /// the slots' per-pixel state.
     seg_size: u32,
+    seg_auto: bool,
     slot_cap: u32,
     seg_tile: GrowBuffer,
     seg_state: GrowBuffer,
@@ -252,7 +256,7 @@ impl Renderer {
             std::mem::size_of::<FrameParams>() as u64,
             Memory::Device,
         )?;
-        Ok(Renderer {
+        let mut r = Renderer {
             ctx: ctx.clone(),
             k,
             scan: None,
@@ -285,7 +289,8 @@ impl Renderer {
                 GrowBuffer::with_memory("raster.image-slot-0", Memory::Readback),
                 GrowBuffer::with_memory("raster.image-slot-1", Memory::Readback),
             ],
-            seg_size: ctx.info().segment_entries(),
+            seg_size: 0,
+            seg_auto: false,
             slot_cap: 0,
             seg_tile: GrowBuffer::new("raster.seg-tile"),
             seg_state: GrowBuffer::new("raster.seg-state"),
@@ -302,7 +307,11 @@ impl Renderer {
             host: None,
             grown: 0,
             voxel_colours: None,
-        })
+        };
+        // The device's default, bounded by its chunks like any other choice.
+        r.set_segment_entries(ctx.info().segment_entries());
+        r.seg_auto = r.seg_size > 0 && ctx.info().segments_adapt();
+        Ok(r)
     }
 
     /// Makes the tile walks of the frames (and training backwards) recorded from now on

@@ -233,7 +233,7 @@ impl Renderer {
             supersampled: render_w != cam.width || render_h != cam.height,
             counters: self.counters_on,
             outputs: self.outputs,
-            seg_size: self.seg_size,
+            seg_size: self.frame_segment_entries(tiles),
             // Host frames are premultiplied over the host's image and fields over
             // nothing: neither has a background.
             frame_mean: scene.background_frame_mean
@@ -247,11 +247,13 @@ impl Renderer {
     /// (`gpu/queue.rs`); a host engine's own pending command buffers are its business
     /// (see `host/`).
     pub fn prepare(&mut self, scene: &SceneGpu, cam: &Camera, opts: &RenderOptions) -> Result<()> {
-        let plan = self.plan(scene, cam, opts)?;
+        self.plan(scene, cam, opts)?;
         self.reserve_voxels(scene.voxels)?;
         if self.entry_cap == 0 {
             self.reserve_entries(scene.voxels as u64 * 2 + 4096)?;
         }
+        // The segment length may depend on the entry capacity just reserved.
+        let plan = self.plan(scene, cam, opts)?;
         let ctx = self.ctx.clone();
         let rpix = plan.render_w as u64 * plan.render_h as u64;
         self.ranges.ensure(&ctx, plan.tiles as u64 * 8)?;
@@ -263,7 +265,7 @@ impl Renderer {
         if plan.frame_mean {
             self.bgsum.ensure(&ctx, frame_mean_floats(rpix) * 4)?;
         }
-        if let Some(per_entries) = self.entry_cap.checked_div(self.seg_size) {
+        if let Some(per_entries) = self.entry_cap.checked_div(plan.seg_size) {
             // Slots stay below tiles + entries / S ("Segments" in raster_params.glsl).
             let slots = u64::from(plan.tiles) + u64::from(per_entries) + 1;
             let state = slots * u64::from(glsl::SEG_CHANNELS) * 256 * 4;
@@ -273,7 +275,7 @@ impl Renderer {
                     "{slots} segments of {} entries need {state} bytes of segment state, more \
                      than one allocation may hold ({limit}): use longer segments \
                      (Renderer::set_segment_entries) or render smaller",
-                    self.seg_size
+                    plan.seg_size
                 )));
             }
             self.slot_cap = slots as u32;

@@ -51,6 +51,9 @@ impl Renderer {
             || self.sort.is_none()
             || self.img.bytes() < plan.render_w as u64 * plan.render_h as u64 * CHANNELS as u64 * 4
             || self.ranges.bytes() < plan.tiles as u64 * 8
+            || (plan.seg_size > 0
+                && u64::from(self.slot_cap)
+                    < u64::from(plan.tiles) + u64::from(self.entry_cap / plan.seg_size) + 1)
         {
             return Err(Error::Invalid(
                 "Renderer::record before Renderer::prepare for this scene and camera".into(),
@@ -156,17 +159,17 @@ impl Renderer {
             maxw: self.maxw_target,
             counters: self.counters_address(),
             host_depth: self.host.map_or(0, |h| h.depth),
-            seg_tile: if self.seg_size > 0 {
+            seg_tile: if plan.seg_size > 0 {
                 self.seg_tile.address()
             } else {
                 0
             },
-            seg_state: if self.seg_size > 0 {
+            seg_state: if plan.seg_size > 0 {
                 self.seg_state.address()
             } else {
                 0
             },
-            seg_size: self.seg_size,
+            seg_size: plan.seg_size,
             slot_cap: self.slot_cap,
             bgsum: if plan.frame_mean {
                 self.bgsum.address()
@@ -186,7 +189,7 @@ impl Renderer {
         }
         recorder::zero(&ctx, cmd, &self.stats);
         recorder::fill(&ctx, cmd, self.ranges.get(), 0, plan.tiles as u64 * 8, 0);
-        if self.seg_size > 0 {
+        if plan.seg_size > 0 {
             let words = u64::from(self.slot_cap) * 4;
             recorder::fill(&ctx, cmd, self.seg_tile.get(), 0, words, u32::MAX);
         }
@@ -321,7 +324,7 @@ impl Renderer {
         } else {
             &self.k.composite[variant][si]
         };
-        if self.seg_size > 0 {
+        if plan.seg_size > 0 {
             self.record_segments(cmd, k, tiles_xy, plan.tiles);
         } else {
             for chunk in 0..plan.chunks {

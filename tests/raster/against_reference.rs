@@ -35,6 +35,46 @@ fn matches_reference_on_random_multilevel_scenes() {
     finish(&ctx);
 }
 
+/// GPUs choose each frame's segment length from its tile count
+/// (`raster::auto_segment_entries`): fewer tiles, shorter segments, at most the longest
+/// allowed; a frame renders exactly as with that length fixed.
+#[test]
+fn segment_length_follows_the_frame_tile_count() {
+    use svraster::raster::auto_segment_entries as auto;
+    // 100², 200², 300², 400², 600² and a 64-tile frame at the H200's 640-tile scale.
+    assert_eq!(auto(49, 2048), 256);
+    assert_eq!(auto(169, 2048), 512);
+    assert_eq!(auto(361, 2048), 1024);
+    assert_eq!(auto(625, 2048), 2048);
+    assert_eq!(auto(1444, 2048), 2048);
+    assert_eq!(auto(64, 4096), 512);
+    assert_eq!(auto(1, 128), 128);
+    assert_eq!(auto(5000, 0), 0);
+    let ctx = context();
+    let mut rng = Rng(4242);
+    let scene = random_scene(&mut rng, 6, 1);
+    let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+    let mut r = Renderer::new(&ctx).unwrap();
+    r.set_segment_entries_auto(2048);
+    // 2048, unless the device's chunks bound segments to less.
+    let longest = r.segment_entries();
+    assert!(longest > 0);
+    let opts = RenderOptions::default();
+    for (w, h) in [(45u32, 31u32), (300, 200)] {
+        let cam = camera_outside(&mut rng, &scene, w, h);
+        let (img, st) = r.render(&gpu, &cam, &opts).unwrap();
+        assert!(st.complete(), "{w}×{h}: {st:?}");
+        let want = auto(st.tiles, longest);
+        assert_eq!(r.segment_entries(), want, "{w}×{h}: {} tiles", st.tiles);
+        let mut fixed = Renderer::new(&ctx).unwrap();
+        fixed.set_segment_entries(want);
+        let (same, _) = fixed.render(&gpu, &cam, &opts).unwrap();
+        assert!(img.rgb == same.rgb && img.alpha == same.alpha && img.depth == same.depth);
+        println!("{w}×{h}: {} tiles, segments of {want}", st.tiles);
+    }
+    finish(&ctx);
+}
+
 /// Segmented compositing (a tile's list cut into segments walked by separate
 /// workgroups, merged in depth order; "Segments" in raster_params.glsl) renders what
 /// the sequential walk renders up to rounding, and what the f64 reference renders as
