@@ -684,6 +684,27 @@ impl Host {
     }
 }
 
+/// Waits for the host's device to go idle when dropped: declared after a
+/// `HostRenderer`, it drops first, so a test that panics with frames in flight does not
+/// free the renderer's buffers under the GPU (on the H200 that panic's unwinding
+/// destroyed buffers still in use, and the test binary later died of SIGSEGV).
+pub struct IdleOnDrop<'a>(&'a ash::Device);
+
+impl Drop for IdleOnDrop<'_> {
+    fn drop(&mut self) {
+        unsafe {
+            let _ = self.0.device_wait_idle();
+        }
+    }
+}
+
+impl Host {
+    /// See [`IdleOnDrop`].
+    pub fn idle_on_drop(&self) -> IdleOnDrop<'_> {
+        IdleOnDrop(&self.device)
+    }
+}
+
 impl Drop for Host {
     fn drop(&mut self) {
         unsafe {

@@ -299,6 +299,7 @@ fn frames_in_flight_grow_and_stay_clean() {
     let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
     const FLIGHT: usize = 3;
     let mut hr = HostRenderer::new(&ctx, FLIGHT as u32).unwrap();
+    let idle = host.idle_on_drop();
     // Small composite chunks: each slot's first frame is short of chunks and grows.
     hr.set_chunk_size(16);
     // Chunks split the unsegmented walk; a GPU's default segments never run short.
@@ -439,6 +440,7 @@ fn frames_in_flight_grow_and_stay_clean() {
     for d in depths {
         host.destroy_image(d);
     }
+    drop(idle);
     drop(hr);
     drop(gpu);
     assert_eq!(ctx.validation_messages(), 0);
@@ -459,6 +461,7 @@ fn host_image_shows_depth_and_normals() {
     let ctx = host.context();
     let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
     let mut hr = HostRenderer::new(&ctx, 2).unwrap();
+    let idle = host.idle_on_drop();
     let hv = host_view(&cam, None, true);
     let (rcam, _) = hv.camera().unwrap();
     let npix = (W * H) as u64;
@@ -537,6 +540,7 @@ fn host_image_shows_depth_and_normals() {
     for b in bufs {
         host.destroy_buffer(b);
     }
+    drop(idle);
     drop(hr);
     drop(gpu);
     assert_eq!(ctx.validation_messages(), 0);

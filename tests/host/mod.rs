@@ -185,6 +185,7 @@ fn host_frame(host: &Host, scene: &Scene, cam: &Camera, reverse: bool, segments:
     let hv = host_view(cam, if reverse { None } else { Some(100.0) }, reverse);
     let (rcam, conv) = hv.camera().unwrap();
     let mut hr = HostRenderer::new(&ctx, 5).unwrap();
+    let _idle = host.idle_on_drop();
     hr.set_segment_entries(segments);
     let npix = (W * H) as u64;
     let tri = triangle(scene, &rcam);
