@@ -6,7 +6,7 @@ use std::path::Path;
 
 use anyhow::{bail, Context as _};
 use svraster::scene::checkpoint;
-use svraster::scene::svraster::{import_svraster, SvrasterImport};
+use svraster::scene::svraster::{import_options_from_config, import_svraster, SvrasterImport};
 
 /// The imported model's background (`--background`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -40,8 +40,8 @@ pub fn parse_background(s: &str) -> Result<Background, String> {
 pub fn run(
     ckpt: &Path,
     out: &Path,
-    background: Background,
-    ss: f32,
+    background: Option<Background>,
+    ss: Option<f32>,
     json: bool,
 ) -> anyhow::Result<()> {
     if !ckpt.is_file() {
@@ -49,6 +49,17 @@ pub fn run(
             "{}: not found; pass an SVRaster checkpoint (MODEL_DIR/checkpoints/iterNNNNNN_model.pt)",
             ckpt.display()
         );
+    }
+    // What SVRaster's own config says, under what the options say.
+    let config = import_options_from_config(ckpt)?;
+    let background = background.unwrap_or(match &config {
+        Some((o, _)) if o.background_frame_mean => Background::FrameMean,
+        Some((o, _)) => Background::Colour(o.background),
+        None => Background::Colour([0.0; 3]),
+    });
+    let ss = ss.unwrap_or(config.as_ref().map_or(1.5, |(o, _)| o.supersample));
+    if let (Some((_, path)), false) = (&config, json) {
+        eprintln!("{}: SVRaster's settings for this model", path.display());
     }
     if !(1.0..=4.0).contains(&ss) {
         bail!("--ss {ss}: the supersampling must be 1 to 4 (SVRaster's default is 1.5)");

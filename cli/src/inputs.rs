@@ -23,19 +23,32 @@ pub fn model_path(model: &Path) -> anyhow::Result<PathBuf> {
 }
 
 /// A model: ours (`.safetensors`, plain or quantized), or SVRaster's `.pt` (imported with
-/// a black background and ss 1.5; `svraster import` chooses them).
+/// the background and ss of the `config.yaml` SVRaster wrote beside it, else black and
+/// ss 1.5; `svraster import` chooses them).
 pub fn load_model(model: &Path) -> anyhow::Result<Scene> {
+    use svraster::scene::svraster as svr;
     let p = model_path(model)?;
-    if svraster::scene::svraster::is_torch_checkpoint(&p) {
-        eprintln!(
-            "{}: an SVRaster checkpoint, read with a black background and ss 1.5 (`svraster \
-             import --background white|black|R,G,B --ss S` to choose)",
-            p.display()
-        );
-        return Ok(svraster::scene::svraster::import_svraster(
-            &p,
-            &svraster::scene::svraster::SvrasterImport::default(),
-        )?);
+    if svr::is_torch_checkpoint(&p) {
+        let opts = match svr::import_options_from_config(&p)? {
+            Some((opts, config)) => {
+                eprintln!(
+                    "{}: an SVRaster checkpoint, read with the background and ss of {}",
+                    p.display(),
+                    config.display()
+                );
+                opts
+            }
+            None => {
+                eprintln!(
+                    "{}: an SVRaster checkpoint without its config.yaml, read with a black \
+                     background and ss 1.5 (`svraster import --background \
+                     white|black|frame-mean|R,G,B --ss S` to choose)",
+                    p.display()
+                );
+                svr::SvrasterImport::default()
+            }
+        };
+        return Ok(svr::import_svraster(&p, &opts)?);
     }
     Ok(checkpoint::load(&p)?)
 }

@@ -454,6 +454,8 @@ enum Command {
     /// iterNNNNNN_model.pt, plain or quantized) into a checkpoint of ours: the same
     /// voxels, grid-point densities and SH, copied. `render`, `eval`, `mesh`, `export`
     /// and `view` also read the .pt directly, with the defaults below.
+    /// Background and supersampling come from the `config.yaml` SVRaster wrote beside
+    /// `checkpoints/` when there is one; the options override it.
     Import {
         /// SVRaster's checkpoint (`torch.save` of its SVInOut.save; read without PyTorch).
         checkpoint: PathBuf,
@@ -461,14 +463,15 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
         /// The background, which SVRaster's checkpoint does not record: white
-        /// (NeRF-synthetic, `white_background`), black (DTU, and the default),
-        /// frame-mean (each frame's own mean colour: Mip-NeRF 360 and other captures
-        /// trained with neither) or R,G,B.
-        #[arg(long, default_value = "black", value_parser = import::parse_background)]
-        background: import::Background,
+        /// (NeRF-synthetic, `white_background`), black (DTU), frame-mean (each frame's
+        /// own mean colour: Mip-NeRF 360 and other captures trained with neither) or
+        /// R,G,B. Default: MODEL_DIR/config.yaml's, else black.
+        #[arg(long, value_parser = import::parse_background)]
+        background: Option<import::Background>,
         /// The supersampling it was trained with (SVRaster's `ss`; renders use it).
-        #[arg(long, default_value_t = 1.5)]
-        ss: f32,
+        /// Default: MODEL_DIR/config.yaml's, else 1.5.
+        #[arg(long)]
+        ss: Option<f32>,
         /// Print a JSON summary instead of the line.
         #[arg(long)]
         json: bool,

@@ -51,6 +51,61 @@ impl Default for SvrasterImport {
     }
 }
 
+/// How SVRaster rendered the model of `ckpt`, from the `config.yaml` its training wrote
+/// beside `checkpoints/` (`MODEL_DIR/config.yaml`; also looked for in the checkpoint's
+/// own folder): `model.white_background` → white, `model.black_background` → black,
+/// neither → each frame's own mean colour (its renderer.py), and `model.ss`. `None`
+/// when there is no such file; an unreadable one or a value of the wrong type is an
+/// error naming it. Returns the options and the file read.
+pub fn import_options_from_config(
+    ckpt: &Path,
+) -> Result<Option<(SvrasterImport, std::path::PathBuf)>> {
+    let dir = ckpt.parent().unwrap_or(Path::new("."));
+    let candidates = [dir.join("config.yaml"), dir.join("..").join("config.yaml")];
+    let Some(path) = candidates.into_iter().find(|p| p.is_file()) else {
+        return Ok(None);
+    };
+    let bad = |what: String| {
+        Error::Invalid(format!(
+            "{}: {what}; it should be the config.yaml SVRaster wrote for this model (or \
+             move it away and pass --background and --ss)",
+            path.display()
+        ))
+    };
+    let text = std::fs::read_to_string(&path).map_err(|e| bad(format!("unreadable ({e})")))?;
+    let docs =
+        yaml_rust2::YamlLoader::load_from_str(&text).map_err(|e| bad(format!("not YAML ({e})")))?;
+    let model = docs
+        .first()
+        .map(|d| &d["model"])
+        .filter(|m| !m.is_badvalue())
+        .ok_or_else(|| bad("no `model:` section".into()))?;
+    let flag = |key: &str| -> Result<bool> {
+        let v = &model[key];
+        if v.is_badvalue() {
+            return Ok(false); // SVRaster's default (src/config.py)
+        }
+        v.as_bool()
+            .ok_or_else(|| bad(format!("model.{key} is not true or false")))
+    };
+    let (white, black) = (flag("white_background")?, flag("black_background")?);
+    let ss = &model["ss"];
+    let supersample = if ss.is_badvalue() {
+        1.5 // SVRaster's default
+    } else {
+        ss.as_f64()
+            .or_else(|| ss.as_i64().map(|i| i as f64))
+            .filter(|v| (1.0..=4.0).contains(v))
+            .ok_or_else(|| bad("model.ss is not a number from 1 to 4".into()))? as f32
+    };
+    let opts = SvrasterImport {
+        background: if white { [1.0; 3] } else { [0.0; 3] },
+        background_frame_mean: !white && !black,
+        supersample,
+    };
+    Ok(Some((opts, path)))
+}
+
 /// Whether `path` looks like a PyTorch checkpoint — a ZIP archive (`torch.save` since
 /// 1.6) or a legacy file (a protocol-2 pickle opening with PyTorch's magic number) — as
 /// opposed to a safetensors model, whose first 8 bytes are its header's length (neither

@@ -47,7 +47,7 @@ fn svraster_checkpoints_render_as_the_model_they_hold() {
     let (r_orig, _) = render(&orig, "r_orig");
     let (r_pt, err) = render(&pt, "r_pt");
     assert!(
-        err.contains("an SVRaster checkpoint, read with a black background"),
+        err.contains("without its config.yaml, read with a black background"),
         "{err}"
     );
     let mut frames = 0;
@@ -124,6 +124,105 @@ fn svraster_checkpoints_render_as_the_model_they_hold() {
     ] {
         let (ok, _, err) = svraster(&args);
         assert!(!ok && err.contains(want), "{args:?}: {err}");
+    }
+}
+
+/// The `config.yaml` SVRaster writes beside `checkpoints/` decides how its model is read
+/// (renderer.py: white, black, else the frame's own mean; `model.ss`), for `import` and
+/// for the `.pt` read directly; the options override it; a broken one is refused naming
+/// the file.
+#[test]
+fn svraster_config_yaml_sets_background_and_ss() {
+    if Command::new("python3").arg("--version").output().is_err() {
+        println!("SKIPPED: python3 not found (the test writes an SVRaster checkpoint with it)");
+        return;
+    }
+    let dir = tmp("import-config");
+    let scene = svraster::data::demo::voxelize(4, 1).unwrap();
+    let orig = dir.path().join("orig.safetensors");
+    svraster::scene::checkpoint::save(&scene, &orig).unwrap();
+    let ckpts = dir.path().join("model/checkpoints");
+    std::fs::create_dir_all(&ckpts).unwrap();
+    let pt = ckpts.join("iter000300_model.pt");
+    let o = Command::new("python3")
+        .arg(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../tools/svraster_checkpoint.py"
+        ))
+        .arg(&orig)
+        .arg(&pt)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let config = dir.path().join("model/config.yaml");
+    let m = dir.path().join("m.safetensors");
+    let import = |extra: &[&str]| -> (bool, Option<svraster::scene::Scene>, String) {
+        let mut args = vec!["import", pt.to_str().unwrap(), "--out", m.to_str().unwrap()];
+        args.extend_from_slice(extra);
+        let (ok, _, err) = svraster(&args);
+        (
+            ok,
+            ok.then(|| svraster::scene::checkpoint::load(&m).unwrap()),
+            err,
+        )
+    };
+    // SVRaster's dump: sections, other keys around the three read.
+    let yaml = |white: &str, black: &str, ss: &str| {
+        format!(
+            "data:\n  res_downscale: 4.0\n  eval: false\nmodel:\n  black_background: {black}\n  \
+             n_samp_per_vox: 1\n  ss: {ss}\n  white_background: {white}\noptimizer:\n  \
+             geo_lr: 0.025\n"
+        )
+    };
+    for (white, black, ss, bg, mean) in [
+        ("true", "false", "1.5", [1.0; 3], false),
+        ("false", "true", "1.0", [0.0; 3], false),
+        ("false", "false", "2", [0.0; 3], true),
+    ] {
+        std::fs::write(&config, yaml(white, black, ss)).unwrap();
+        let (ok, got, err) = import(&[]);
+        assert!(ok, "{err}");
+        let got = got.unwrap();
+        assert!(err.contains("config.yaml: SVRaster's settings"), "{err}");
+        let want_ss: f32 = ss.parse().unwrap();
+        assert_eq!(
+            (got.background, got.background_frame_mean, got.supersample),
+            (bg, mean, want_ss),
+            "white {white} black {black} ss {ss}"
+        );
+    }
+    // The options win over the file.
+    std::fs::write(&config, yaml("true", "false", "1.5")).unwrap();
+    let (ok, got, err) = import(&["--background", "black", "--ss", "1"]);
+    assert!(ok, "{err}");
+    let got = got.unwrap();
+    assert_eq!((got.background, got.supersample), ([0.0; 3], 1.0));
+    // Read directly: the file's white background.
+    let data = small_data(dir.path(), "data", 4);
+    let (ok, _, err) = svraster(&[
+        "eval",
+        pt.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(err.contains("read with the background and ss of"), "{err}");
+    // Broken files are refused naming the file.
+    for (text, want) in [
+        ("model: [unclosed\n", "not YAML"),
+        ("data:\n  eval: false\n", "no `model:` section"),
+        (
+            "model:\n  white_background: maybe\n",
+            "model.white_background is not true or false",
+        ),
+        ("model:\n  ss: 9\n", "model.ss is not a number from 1 to 4"),
+    ] {
+        std::fs::write(&config, text).unwrap();
+        let (ok, _, err) = import(&[]);
+        assert!(
+            !ok && err.contains(want) && err.contains("config.yaml"),
+            "{text}: {err}"
+        );
     }
 }
 
