@@ -265,6 +265,45 @@ fn sort_every_pass_kernel() {
     common::finish(&ctx);
 }
 
+/// The look-back counters `bench sort` reports count each run afresh: a multi-tile
+/// sort reads at least one status word per digit of every tile but the first (unless a
+/// fallback recounted it) and at most every predecessor's; a one-tile sort after it
+/// reads none.
+#[test]
+fn lookback_counters_count_each_run() {
+    let ctx = common::context();
+    let mut rng = Rng(78);
+    for pass in SortPass::ALL {
+        if !pass.supported(ctx.info()) {
+            continue;
+        }
+        let h = Harness::with_pass(&ctx, 1 << 17, pass);
+        let n = 65_537usize;
+        let tiles = n.div_ceil(pass.tile() as usize) as u64;
+        let keys: Vec<u64> = (0..n).map(|_| rng.below(1 << 16)).collect();
+        let vals: Vec<u32> = (0..n as u32).collect();
+        let (gk, gv) = h.run(&keys, &vals, 0, 16);
+        assert_eq!((gk, gv), common::reference_sort(&keys, &vals, 0, 16));
+        let c = h.sort.last_lookback().unwrap();
+        println!("{}: {tiles} tiles x 2 passes: {c:?}", pass.name());
+        let (least, most) = ((tiles - 1) * 256 * 2, tiles * (tiles - 1) / 2 * 256 * 2);
+        assert!(u64::from(c.steps) <= most, "{}: {c:?}", pass.name());
+        assert!(c.steps > 0, "{}: {c:?}", pass.name());
+        if c.fallbacks == 0 {
+            assert!(u64::from(c.steps) >= least, "{}: {c:?}", pass.name());
+        }
+        let few: Vec<u64> = keys[..255].to_vec();
+        h.run(&few, &vals[..255], 0, 16);
+        assert_eq!(
+            h.sort.last_lookback().unwrap(),
+            Default::default(),
+            "{}: one tile walks back nowhere",
+            pass.name()
+        );
+    }
+    common::finish(&ctx);
+}
+
 /// Passes whose digit is the same for every key are skipped on the GPU, whichever
 /// passes they are and whether an odd or even number is skipped (the result is then
 /// copied to where the recorded passes end); with skipping off every pass runs. The

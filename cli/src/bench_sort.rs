@@ -85,11 +85,22 @@ struct SortReport {
     /// bytes_per_pass / median time, per pass that ran (GB/s = 1e9 bytes/s); the
     /// histogram reads n keys once.
     stages_gb_per_s: BTreeMap<String, f64>,
+    /// The decoupled look-back of the timed runs (medians): status words read per digit
+    /// and tile (1 is the least: the predecessor had its inclusive prefix), extra polls
+    /// of unpublished words per tile, fallback rounds per run.
+    lookback: LookbackReport,
     verified: bool,
     failed_runs: u32,
     cpu_median_ms: f64,
     cpu_mkeys_per_s: f64,
     speedup_vs_cpu: f64,
+}
+
+#[derive(serde::Serialize)]
+struct LookbackReport {
+    steps_per_digit_tile: f64,
+    waits_per_tile: f64,
+    fallbacks_per_run: f64,
 }
 
 pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
@@ -188,6 +199,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     let mut wall_ms = Vec::new();
     let mut stages: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut failed = 0u32;
+    let mut lookback: Vec<svraster::sort::LookbackCounters> = Vec::new();
     for i in 0..warmup + runs {
         let t0 = Instant::now();
         let which = ctx.submit_and_wait(|cmd| {
@@ -220,6 +232,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
             eprintln!("run {i}: WRONG RESULT (first mismatch at {bad:?}, error bits {errors:#x})");
         }
         if i >= warmup {
+            lookback.push(sorter.last_lookback()?);
             gpu_ms.push(st.iter().map(|s| s.1).sum());
             wall_ms.push(wall);
             for (name, ms) in st {
@@ -233,6 +246,17 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     let stages_median_ms: BTreeMap<String, f64> =
         stages.iter().map(|(k, v)| (k.clone(), median(v))).collect();
     let bytes_per_pass = u64::from(n) * 12 * 2;
+    let ran = f64::from(passes - (skipped & ((1 << passes) - 1)).count_ones());
+    let tiles = f64::from(n.div_ceil(pass.tile()));
+    let per = |f: &dyn Fn(&svraster::sort::LookbackCounters) -> f64, d: f64| {
+        let v: Vec<f64> = lookback.iter().map(|c| f(c) / d.max(1.0)).collect();
+        median(&v)
+    };
+    let lookback = LookbackReport {
+        steps_per_digit_tile: per(&|c| f64::from(c.steps), (tiles - 1.0) * 256.0 * ran),
+        waits_per_tile: per(&|c| f64::from(c.waits), tiles * ran),
+        fallbacks_per_run: per(&|c| f64::from(c.fallbacks), 1.0),
+    };
     let stages_gb_per_s = stages_median_ms
         .iter()
         .filter_map(|(k, &ms)| {
@@ -265,6 +289,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         stages_median_ms,
         bytes_per_pass,
         stages_gb_per_s,
+        lookback,
         verified: failed == 0,
         failed_runs: failed,
         cpu_median_ms: cpu,
@@ -294,6 +319,12 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
                 None => println!("    {k:<16} {v:9.2} ms"),
             }
         }
+        let lb = &report.lookback;
+        println!(
+            "  look-back: {:.2} status words read per digit and tile, {:.1} extra polls per \
+             tile, {:.0} fallback rounds per run",
+            lb.steps_per_digit_tile, lb.waits_per_tile, lb.fallbacks_per_run
+        );
         println!(
             "  CPU   median {:9.2} ms  {:8.2} Mkeys/s  (Rust sort_unstable, 1 thread)",
             cpu, report.cpu_mkeys_per_s

@@ -7,6 +7,10 @@
 #define ST_EPOCH 2        // tag base of look-back status words; +8 per run
 #define ST_ERRORS 3       // sticky error bits (ERR_*), cleared by the host
 #define ST_TOTAL 4        // scan: total sum
+// Look-back counters of the sort's passes in this run (zeroed by setup; bench sort):
+#define ST_LB_STEPS 5     // status words read that carried a flag (one per digit per tile walked)
+#define ST_LB_WAITS 6     // extra polls of words not yet published
+#define ST_LB_FALLBACKS 7 // fallback rounds (a workgroup recounted a stalled tile's keys)
 #define ST_TILE_CTR 8     // 8 tile-claim counters (one per sort pass)
 #define ST_ARGS_TILES 16  // VkDispatchIndirectCommand for tile kernels (x, y, z)
 #define ST_ARGS_CHUNKS 20 // VkDispatchIndirectCommand for the histogram kernel

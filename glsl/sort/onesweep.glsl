@@ -139,6 +139,7 @@ void main() {
     }
     if (tile > 0u) {
         uint j = tile - 1u;
+        uint lb_steps = 0u, lb_waits = 0u;
         for (;;) { // workgroup-uniform: every exit depends on lb_workgroup_or results only
             bool pending[DPT];
             bool any_pending = false;
@@ -148,14 +149,17 @@ void main() {
                     uint idx = j * RADIX + t + q * WG;
                     uint64_t w = lb_load(pc.status, idx);
                     uint f = lb_flag(w, tag);
-                    for (uint s = 0u; f == 0u && s < pc.spin_limit; s++) {
+                    uint s = 0u;
+                    for (; f == 0u && s < pc.spin_limit; s++) {
                         w = lb_load(pc.status, idx);
                         f = lb_flag(w, tag);
                     }
+                    lb_waits += s;
                     if (f == 0u) {
                         pending[q] = true;
                         any_pending = true;
                     } else {
+                        lb_steps++;
                         before[q] += lb_value(w);
                         done[q] = f == LB_INCLUSIVE;
                     }
@@ -164,6 +168,7 @@ void main() {
             if (lb_workgroup_or(any_pending ? 1u : 0u) != 0u) {
                 // Fallback: count tile j's digits from its keys (tile j < tile is full).
                 for (uint i = t; i < RADIX; i += WG) s_fallback[i] = 0u;
+                if (t == 0u) atomicAdd(pc.state.v[ST_LB_FALLBACKS], 1u);
                 barrier();
                 for (uint r = 0u; r < KPT; r++) {
                     KeyT key = keys_in.v[j * TILE + r * WG + t];
@@ -190,6 +195,12 @@ void main() {
         for (uint q = 0u; q < DPT; q++) {
             uint d = t + q * WG;
             lb_store(pc.status, status_base + d, lb_pack(tag, LB_INCLUSIVE, before[q] + count[q]));
+        }
+        // Counters (bench sort): one global add per subgroup.
+        uint sst = subgroupAdd(lb_steps), swt = subgroupAdd(lb_waits);
+        if (subgroupElect()) {
+            atomicAdd(pc.state.v[ST_LB_STEPS], sst);
+            atomicAdd(pc.state.v[ST_LB_WAITS], swt);
         }
     }
     uint hist_base = ST_HIST + pc.pass_index * RADIX;

@@ -62,10 +62,15 @@ shared uint s_local[RADIX];    // tile-local start of each digit
 shared uint s_base[RADIX];     // fallback counts during look-back; then global base - local start
 shared uint s_part[MAX_SG];    // subgroup sums of the digit scan
 shared uint s_jmax;            // look-back: the nearest tile a digit stalled on
+shared uint s_lb[2];           // look-back steps and extra polls of the workgroup
 
 void main() {
     uint t = gl_LocalInvocationID.x;
-    if (t == 0u) s_tile = atomicAdd(pc.state.v[ST_TILE_CTR + pc.pass_index], 1u);
+    if (t == 0u) {
+        s_tile = atomicAdd(pc.state.v[ST_TILE_CTR + pc.pass_index], 1u);
+        s_lb[0] = 0u;
+        s_lb[1] = 0u;
+    }
     for (uint i = t; i < ROWS_WORDS; i += WG) s_mem[i] = 0u;
     barrier();
     uint tile = s_tile;
@@ -186,6 +191,7 @@ void main() {
         done[q] = tile == 0u;
     }
     if (tile > 0u) {
+        uint lb_steps = 0u, lb_waits = 0u;
         for (;;) { // workgroup-uniform: exits depend on lb_workgroup_or results only
             bool stalled = false;
             [[unroll]] for (uint q = 0u; q < DPT; q++) {
@@ -194,14 +200,17 @@ void main() {
                     uint idx = jj[q] * RADIX + d;
                     uint64_t w = lb_load(pc.status, idx);
                     uint f = lb_flag(w, tag);
-                    for (uint s = 0u; f == 0u && s < pc.spin_limit; s++) {
+                    uint s = 0u;
+                    for (; f == 0u && s < pc.spin_limit; s++) {
                         w = lb_load(pc.status, idx);
                         f = lb_flag(w, tag);
                     }
+                    lb_waits += s;
                     if (f == 0u) {
                         stalled = true;
                         break;
                     }
+                    lb_steps++;
                     before[q] += lb_value(w);
                     if (f == LB_INCLUSIVE) {
                         done[q] = true;
@@ -219,6 +228,7 @@ void main() {
             [[unroll]] for (uint q = 0u; q < DPT; q++)
                 if (!done[q]) atomicMax(s_jmax, jj[q] + 1u);
             for (uint i = t; i < RADIX; i += WG) s_base[i] = 0u;
+            if (t == 0u) atomicAdd(pc.state.v[ST_LB_FALLBACKS], 1u);
             barrier();
             uint j = s_jmax - 1u;
             for (uint r = 0u; r < KPT; r++) {
@@ -234,6 +244,17 @@ void main() {
                 }
             }
             barrier(); // s_base and s_jmax are reused by the next round
+        }
+        // Counters (bench sort): one shared add per subgroup, one global add per tile.
+        uint sst = subgroupAdd(lb_steps), swt = subgroupAdd(lb_waits);
+        if (subgroupElect()) {
+            atomicAdd(s_lb[0], sst);
+            atomicAdd(s_lb[1], swt);
+        }
+        barrier();
+        if (t == 0u) {
+            atomicAdd(pc.state.v[ST_LB_STEPS], s_lb[0]);
+            atomicAdd(pc.state.v[ST_LB_WAITS], s_lb[1]);
         }
         [[unroll]] for (uint q = 0u; q < DPT; q++) {
             lb_store(pc.status, status_base + t + q * WG,

@@ -34,6 +34,9 @@ void main() {
         pc.state.v[ST_N] = n;
         pc.state.v[ST_REQUESTED] = requested;
         pc.state.v[ST_TOTAL] = 0u;
+        pc.state.v[ST_LB_STEPS] = 0u;
+        pc.state.v[ST_LB_WAITS] = 0u;
+        pc.state.v[ST_LB_FALLBACKS] = 0u;
         uint e = pc.state.v[ST_EPOCH] + 8u;
         // Epoch 0 is what a fresh (zeroed) status array holds: never use it.
         if ((e & 0x3ffffff8u) == 0u) e = 8u;

@@ -241,6 +241,18 @@ impl RunState {
     }
 }
 
+/// The decoupled look-back of a sort run, summed over its passes and tiles.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct LookbackCounters {
+    /// Status words read that carried a flag: per digit, one per predecessor tile
+    /// walked (at least one per digit of every tile but the first).
+    pub steps: u32,
+    /// Extra polls of status words not yet published (waiting on a predecessor).
+    pub waits: u32,
+    /// Rounds in which a workgroup gave up waiting and recounted a predecessor's keys.
+    pub fallbacks: u32,
+}
+
 /// The radix sort: kernels plus the state and look-back buffers for up to `capacity`
 /// elements. One instance serves one sort at a time on the queue (record several sorts
 /// one after another into a command buffer freely; they are ordered by barriers).
@@ -522,6 +534,17 @@ impl RadixSort {
     pub fn last_count(&self) -> Result<(u32, u32)> {
         let s = self.run.read(&self.ctx)?;
         Ok((s[ST_N], s[ST_REQUESTED]))
+    }
+
+    /// What the last run's decoupled look-back did, over all its passes (waits for the
+    /// device): where a pass's time goes on a GPU (`bench sort --json`).
+    pub fn last_lookback(&self) -> Result<LookbackCounters> {
+        let s = self.run.read(&self.ctx)?;
+        Ok(LookbackCounters {
+            steps: s[glsl::ST_LB_STEPS as usize],
+            waits: s[glsl::ST_LB_WAITS as usize],
+            fallbacks: s[glsl::ST_LB_FALLBACKS as usize],
+        })
     }
 
     /// Bit p set: pass p of the last run was skipped (its digit was the same for every
