@@ -24,13 +24,15 @@ done
 python3 - "$O/sort.jsonl" <<'PY'
 import json, sys
 rows = [json.loads(l) for l in open(sys.argv[1]) if l.strip()]
-print("| pass | bits | vary | skipped | ms | Gkeys/s | histogram GB/s | pass GB/s (median) | verified |")
-print("|---|---|---|---|---|---|---|---|---|")
+print("| pass | bits | vary | skipped | ms | Gkeys/s | histogram GB/s | pass GB/s (median) | look-back words/digit, polls/tile, fallbacks/run | verified |")
+print("|---|---|---|---|---|---|---|---|---|---|")
 for r in rows:
     g = r["stages_gb_per_s"]
     ps = sorted(v for k, v in g.items() if k.startswith("sort.pass"))
     pm = ps[len(ps) // 2] if ps else 0
+    lb = r.get("lookback") or {}
     print(f"| {r['pass_kernel']} | {r['bits']} | {r['vary']} | {bin(r['skipped_passes']).count('1')} | "
           f"{r['median_ms']:.2f} | {r['mkeys_per_s'] / 1e3:.2f} | {g.get('sort.histogram', 0):.0f} | "
-          f"{pm:.0f} | {r['verified']} |")
+          f"{pm:.0f} | {lb.get('steps_per_digit_tile', 0):.2f}, {lb.get('waits_per_tile', 0):.0f}, "
+          f"{lb.get('fallbacks_per_run', 0):.0f} | {r['verified']} |")
 PY

@@ -1,0 +1,112 @@
+#!/usr/bin/env bash
+# One device call that checks this engine on a lent GPU beside the official SVRaster
+# (issues "Real GPUs", "The onesweep sort", "Quality"; what the 2026-11-27 H200 run did).
+# Prepare here: apt-get update; ../shared/gpu/prepare.sh .gpu (../shared/gpu/README.md);
+# echo /.gpu/ >> .git/info/exclude. On the device, from the checkout's root, carry .gpu:
+#   bash tools/gpu_check.sh .gpu [SECONDS=570] [VARIANT_SETTINGS...]
+# Steps (each capped so later ones still run; outputs go to $OUT as they are made):
+#   1. Vulkan info; SVRaster's CUDA build, then its small fixture model (300 iterations,
+#      1/4 size, its own test renders: $OUT/svr_tiny.tgz, for
+#      `cli import::svraster_s_own_renders_match_ours` with SVRASTER_SVR_FIXTURE)
+#   2. the test binaries (4 at a time, 6 threads each) while that builds
+#   3. bench sort 2^24 (auto and direct pass, 40 bits) with look-back counters;
+#      bench train lego 100²/200²/400² level 6 (auto segments) and 400² level 7
+#   4. lego 400², 6 000 iterations, the default preset (timed alone), eval on the 50
+#      test views, bench render of that model
+#   5. SVRaster on the same data and card, 6 000 iterations (timed alone)
+#   6. with what is left: the same training with `--set` VARIANT_SETTINGS (e.g.
+#      reset_adam_at_adapt=true), eval
+# $OUT: run.log (everything), res.tgz (logs, JSON, stats), svr_tiny.tgz.
+# A dry run of the flow on any machine: SKIP_TESTS=1 ITERS=60 OUT=/tmp/o bash tools/gpu_check.sh .gpu
+set -u
+G=$(cd "${1:-.gpu}" && pwd); BUDGET=${2:-570}; shift 2 2>/dev/null || shift $#
+VARIANT=("$@"); ITERS=${ITERS:-6000}
+O=${OUT:-/tmp/out}; X=/tmp/x; mkdir -p "$O" "$X"
+exec > >(tee -a "$O/run.log") 2>&1
+t0=$(date +%s)
+left() { echo $(( BUDGET - ($(date +%s) - t0) )); }
+stamp() { echo "### t=$(( $(date +%s) - t0 ))s left=$(left)s :: $*"; }
+pack() { (cd $X && tar czf "$O/res.tgz" --exclude=svr_tiny . 2>/dev/null); }
+cap() { local want=$1 l; l=$(( $(left) - ${2:-0} )); [ $l -lt $want ] && want=$l; [ $want -lt 5 ] && want=5; echo $want; }
+stamp setup
+. "$(dirname "$0")/gpu_kit.sh"
+kit_lego
+nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
+P=$(cat "$G/project_path")
+if [ -f "$G/svr/run_svr.sh" ]; then
+  ( bash "$G/svr/run_svr.sh" build > $X/svr_build.log 2>&1; echo "svr build rc=$?" >> $X/svr_build.log
+    SVR_SLIM=0 SVR_TRAIN_EXTRA_ARGS="--init_n_level 4 --res_downscale 4" timeout -s INT 150 \
+      bash "$G/svr/run_svr.sh" run /tmp/lego /tmp/svr_tiny 300 > $X/svr_tiny.log 2>&1
+    echo "svr tiny rc=$?" >> $X/svr_tiny.log ) &
+  SVR=$!
+fi
+timeout 60 "$B" info || { VK_LOADER_DEBUG=error,warn timeout 60 "$B" info 2>&1 | tail -30; pack; exit 1; }
+timeout 60 "$B" info --json > $X/info.json
+stamp tests
+cd "$P"; PIDS=()
+for t in target/release/deps/*; do
+  [ -n "${SKIP_TESTS:-}" ] && break
+  n=$(basename $t); case $n in *.*) continue;; esac; [ -x $t ] || continue; n=${n%-*}
+  ( s=$(date +%s); timeout 170 $t --test-threads=6 > $X/test_$n.log 2>&1; rc=$?
+    echo "TEST $n rc=$rc $(( $(date +%s) - s ))s $(grep -E '^test result' $X/test_$n.log | tail -1)" ) &
+  PIDS+=($!)
+  while [ $(jobs -r | wc -l) -ge 5 ]; do sleep 1; done
+done
+for p in "${PIDS[@]}"; do wait $p; done
+grep -h -E "^test .* FAILED|panicked at" $X/test_*.log | head -40
+cd /tmp; pack
+if [ -n "${SVR:-}" ]; then
+  stamp "waiting for SVRaster's fixture (the timed steps run alone)"
+  for i in $(seq 120); do kill -0 $SVR 2>/dev/null || break; sleep 1; done
+  kill -0 $SVR 2>/dev/null && { echo "svr tiny still running: stopped"; pkill -INT -f run_svr.sh; sleep 5; }
+  tail -1 $X/svr_build.log $X/svr_tiny.log 2>/dev/null
+  mkdir -p $X/svr_tiny && (cd /tmp/svr_tiny/lego 2>/dev/null &&
+    find . -name '*.pt' -size -15M -exec cp --parents {} $X/svr_tiny/ \; ;
+    find . -path '*test*renders*' -name '*.png' | head -20 | xargs -r cp --parents -t $X/svr_tiny/
+    cp config.yaml $X/svr_tiny/ 2>/dev/null)
+  (cd $X && tar czf "$O/svr_tiny.tgz" svr_tiny svr_tiny.log 2>/dev/null)
+fi
+stamp bench
+for a in "--pass auto" "--pass direct" "--bits 0..40"; do
+  timeout 40 "$B" bench sort --n 16777216 --runs 5 --warmup 2 $a --json >> $X/sort.jsonl 2>>$X/sort.err
+done
+python3 - $X/sort.jsonl <<'PY'
+import json, sys
+for l in open(sys.argv[1]):
+    d = json.loads(l); g = sorted(v for k, v in d['stages_gb_per_s'].items() if k.startswith('sort.pass'))
+    print('sort', d['pass_kernel'], d['bits'], round(d['median_ms'], 2), 'ms', round(d['mkeys_per_s'] / 1e3, 2),
+          'Gkeys/s, pass GB/s', round(g[len(g) // 2]) if g else '-', 'look-back', d.get('lookback'), 'verified', d['verified'])
+PY
+for cfg in "4 6" "2 6" "1 6" "1 7"; do set -- $cfg
+  timeout 40 "$B" bench train /tmp/lego --downscale $1 --preset quick --set grid_level=$2 --iters 10 --warmup 2 --json >> $X/bench_train.jsonl 2>>$X/bench_train.err
+done
+python3 - $X/bench_train.jsonl <<'PY'
+import json, sys
+for l in open(sys.argv[1]):
+    d = json.loads(l)
+    print('bench train', d['image'], d['voxels'], 'segments', d.get('segment_entries'), 'GPU', round(d['median_ms_per_iter'], 2),
+          'wall', round(d['wall_median_ms_per_iter'], 2), 'queue', d['queue_per_iter'].get('submits_median'), d['queue_per_iter'].get('fence_waits_median'))
+PY
+pack
+train() { # name, settings...
+  local v=$1; shift; stamp "train $v"; local s=$(date +%s) S=()
+  for kv in "$@"; do S+=(--set "$kv"); done
+  timeout -s INT $(cap 170 $RES) "$B" train /tmp/lego --out /tmp/runs/$v --iters $ITERS "${S[@]}" > $X/train_$v.log 2>&1
+  echo "train $v rc=$? wall $(( $(date +%s) - s ))s"; tail -1 $X/train_$v.log
+  cp /tmp/runs/$v/stats.jsonl $X/stats_$v.jsonl 2>/dev/null
+  timeout 60 "$B" eval /tmp/runs/$v --data /tmp/lego --split test --json > $X/eval_$v.json 2>$X/eval_$v.err
+  python3 -c "import json; d=json.load(open('$X/eval_$v.json')); print('eval $v', {k: x for k, x in d.items() if k != 'per_view'})" || tail -3 $X/eval_$v.err
+  pack
+}
+RES=170; train base
+timeout 40 "$B" bench render /tmp/runs/base --data /tmp/lego --split test --views 20 --runs 3 --json > $X/render_base.json 2>$X/render_base.err
+python3 -c "import json; d=json.load(open('$X/render_base.json')); print('render: GPU', d['median_ms'], 'ms, wall', d['wall_median_ms'], 'ms, segments', d.get('segment_entries'))" || tail -3 $X/render_base.err
+if [ -n "${SVR:-}" ]; then
+  stamp "SVRaster, $ITERS iterations"
+  timeout -s INT $(cap 170 20) bash "$G/svr/run_svr.sh" run /tmp/lego /tmp/svr $ITERS > $X/svr_run.log 2>&1; echo "svr rc=$?"
+  cp /tmp/svr/svr_result.json $X/ 2>/dev/null
+  python3 -c "import json; d=json.load(open('$X/svr_result.json')); print('SVRaster', {k: d.get(k) for k in ('train_wall_s', 'train_iter_time_s', 'n_voxels', 'fps', 'psnr', 'ssim')})" || tail -8 $X/svr_run.log
+  pack
+fi
+if [ ${#VARIANT[@]} -gt 0 ] && [ $(left) -gt 110 ]; then RES=40; train variant "${VARIANT[@]}"; fi
+stamp done; pack
