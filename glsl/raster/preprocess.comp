@@ -100,11 +100,15 @@ void main() {
     P.signs.v[v] = signs;
     P.counts.v[v] = count;
 
-    // Totals: one 64-bit atomic per subgroup (the frame total can exceed 32 bits).
-    uint sub_total = subgroupAdd(count);  // <= 64 lanes * 8 * 65536 < 2^32
+    // Totals: one 64-bit atomic per subgroup (the frame total can exceed 32 bits). A
+    // voxel's count (8 signs x its tiles) fits 32 bits, a subgroup's sum may not (64
+    // lanes of voxels over 8.4 M tiles each): summed in 16-bit halves, exact.
+    uint sub_hi = subgroupAdd(count >> 16u);     // <= 64 * 2^16
+    uint sub_lo = subgroupAdd(count & 0xffffu);  // <= 64 * 2^16
+    uint64_t sub_total = (uint64_t(sub_hi) << 16) + uint64_t(sub_lo);
     uint sub_visible = subgroupAdd(count > 0u ? 1u : 0u);
     if (subgroupElect()) {
-        atomicAdd(U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u], uint64_t(sub_total));
+        atomicAdd(U64s(uint64_t(P.stats)).v[STAT_TOTAL / 2u], sub_total);
         atomicAdd(P.stats.v[STAT_VISIBLE], sub_visible);
     }
     if (count == 0u) return;
