@@ -44,6 +44,7 @@ fn sort_on_a_borrowed_device_in_a_host_command_buffer() {
         // The engine's objects drop here; the host's device must survive that (Host's
         // drop waits for it to be idle and fails otherwise).
     }
+    let log = host.log();
     drop(host);
-    assert_host_clean();
+    assert_host_clean(&log);
 }

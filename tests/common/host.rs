@@ -3,45 +3,43 @@
 //! pool, images and buffers, and a depth-only graphics pipeline of its own.
 
 use std::ffi::{c_void, CStr};
-use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::Mutex;
+use std::sync::{Arc, Mutex};
 
 use ash::vk;
 use svraster::gpu::{BorrowedHandles, Context};
 
-static MESSAGES: AtomicU64 = AtomicU64::new(0);
-static LOG: Mutex<Vec<String>> = Mutex::new(Vec::new());
+/// The validation messages one host's messenger received. Each host has its own, so a
+/// test that fails and leaks its objects does not fail the tests after it.
+pub type HostLog = Arc<Mutex<Vec<String>>>;
 
 unsafe extern "system" fn callback(
     severity: vk::DebugUtilsMessageSeverityFlagsEXT,
     _ty: vk::DebugUtilsMessageTypeFlagsEXT,
     data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
-    _user: *mut c_void,
+    user: *mut c_void,
 ) -> vk::Bool32 {
     if severity.intersects(
         vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
             | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
     ) {
-        MESSAGES.fetch_add(1, Ordering::SeqCst);
         let msg = CStr::from_ptr((*data).p_message).to_string_lossy();
         eprintln!("[host validation] {msg}");
-        LOG.lock().unwrap().push(msg.into_owned());
+        // The host's log (Host::new passes it; it outlives the messenger).
+        let log = &*(user as *const Mutex<Vec<String>>);
+        log.lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .push(msg.into_owned());
     }
     vk::FALSE
 }
 
-/// Validation messages seen by any host's messenger in this test binary.
-pub fn host_messages() -> u64 {
-    MESSAGES.load(Ordering::SeqCst)
-}
-
-/// Asserts no host messenger reported anything.
-pub fn assert_host_clean() {
-    assert_eq!(
-        host_messages(),
-        0,
+/// Asserts the host whose log this is (`Host::log`) reported nothing.
+pub fn assert_host_clean(log: &HostLog) {
+    let l = log.lock().unwrap_or_else(|e| e.into_inner());
+    assert!(
+        l.is_empty(),
         "validation messages on the host's messenger:\n{}",
-        LOG.lock().unwrap().join("\n")
+        l.join("\n")
     );
 }
 
@@ -55,6 +53,7 @@ pub struct Host {
     pub qf: u32,
     pub queue: vk::Queue,
     pub pool: vk::CommandPool,
+    log: HostLog,
 }
 
 /// A host-owned buffer in host-visible, coherent memory (mapped).
@@ -100,6 +99,7 @@ impl Host {
                 )
                 .expect("host instance (needs vulkan-validationlayers)");
             let du = ash::ext::debug_utils::Instance::new(&entry, &instance);
+            let log: HostLog = Arc::new(Mutex::new(Vec::new()));
             let messenger = du
                 .create_debug_utils_messenger(
                     &vk::DebugUtilsMessengerCreateInfoEXT::default()
@@ -111,7 +111,8 @@ impl Host {
                             vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
                                 | vk::DebugUtilsMessageTypeFlagsEXT::GENERAL,
                         )
-                        .pfn_user_callback(Some(callback)),
+                        .pfn_user_callback(Some(callback))
+                        .user_data(Arc::as_ptr(&log) as *mut c_void),
                     None,
                 )
                 .unwrap();
@@ -167,8 +168,15 @@ impl Host {
                 qf,
                 queue,
                 pool,
+                log,
             }
         }
+    }
+
+    /// This host's validation log (see [`assert_host_clean`]); keep it past the host's
+    /// drop, whose messages it also collects.
+    pub fn log(&self) -> HostLog {
+        self.log.clone()
     }
 
     /// The engine's context on the host's device and queue.

@@ -285,8 +285,9 @@ fn host_depth_cuts_rays_and_targets_agree() {
     }
     println!("segments of 5 vs none: max difference {diff:.2e}");
     assert!(diff <= 1e-5, "segmented host frame differs by {diff}");
+    let log = host.log();
     drop(host);
-    assert_host_clean();
+    assert_host_clean(&log);
 }
 
 #[test]
@@ -445,8 +446,9 @@ fn frames_in_flight_grow_and_stay_clean() {
     drop(gpu);
     assert_eq!(ctx.validation_messages(), 0);
     drop(ctx);
+    let log = host.log();
     drop(host);
-    assert_host_clean();
+    assert_host_clean(&log);
 }
 
 /// `HostRenderer::set_image`: the colour target shows the depth (grey by the reference's
@@ -545,8 +547,9 @@ fn host_image_shows_depth_and_normals() {
     drop(gpu);
     assert_eq!(ctx.validation_messages(), 0);
     drop(ctx);
+    let log = host.log();
     drop(host);
-    assert_host_clean();
+    assert_host_clean(&log);
 }
 
 fn render_pixel(cam: &Camera, scene: &Scene, px: u32, py: u32) -> RefPixel {
