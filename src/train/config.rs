@@ -352,14 +352,14 @@ pub const PRESETS: &[(&str, &str)] = &[
          real-fast-train): no supersampling, and a starting grid one level coarser with \
          voxels stopping at two pixels on synthetic scenes (lego 100², 1 000 iterations: \
          3.2× faster training, −0.5 dB against the synthetic preset with that guard) or \
-         SH degree 1 on captures (llff_flower: 1.24× faster, −0.6 dB)",
+         SH degree 1 on captures (llff_flower: 1.43× faster, −0.6 dB)",
     ),
     (
         "fast-render",
         "a speed modifier on the data's preset (or appended to any): no supersampling, \
          and pruning threshold 0.15 with voxels stopping at two pixels on synthetic scenes \
          (lego: 1.8× faster frames, −0.14 dB against the synthetic preset with that \
-         guard; llff_flower without the threshold: 1.6×, −0.15 dB)",
+         guard; llff_flower without the threshold: 1.3×, −0.11 dB)",
     ),
 ];
 
@@ -470,8 +470,8 @@ impl TrainConfig {
     /// trade` (docs/PERFORMANCE.md "Speed ↔ accuracy", 1 000 iterations): on the synthetic presets no
     /// supersampling and a starting grid one level coarser (lego 100²: 3.2× faster
     /// training, −0.5 dB; the dense first phase is most of a short run), on the capture
-    /// presets no supersampling and SH degree 1 (llff_flower 126×95: 1.24× faster,
-    /// −0.56 dB; a coarser grid cost 2.6 dB there).
+    /// presets no supersampling and SH degree 1 (llff_flower 126×95: 1.43× faster,
+    /// −0.58 dB; a coarser grid cost 2.65 dB there).
     fn fast_train(&mut self, base: &str) {
         self.ss = 1.0;
         if matches!(base, "synthetic" | "quick") {
@@ -486,8 +486,8 @@ impl TrainConfig {
     /// The `fast-render` modifier, chosen from the frame-time Pareto fronts likewise:
     /// models render at the resolution they were trained at, so no supersampling; on the
     /// synthetic presets also the paper's fast-rendering pruning threshold, 0.15 (lego:
-    /// 1.8× faster frames, −0.14 dB); not on the capture presets, where it cost 2.2 dB
-    /// (llff_flower; no supersampling alone: 1.6× faster frames, −0.15 dB).
+    /// 1.8× faster frames, −0.14 dB); not on the capture presets, where it cost 2.3 dB
+    /// (llff_flower; no supersampling alone: 1.3× faster frames, −0.11 dB).
     fn fast_render(&mut self, base: &str) {
         self.ss = 1.0;
         if matches!(base, "synthetic" | "quick") {
