@@ -5,6 +5,21 @@
 
 use super::*;
 
+/// Writes our model `orig` as SVRaster's save lays it out, to `pt`
+/// (tools/svraster_checkpoint.py, without PyTorch).
+fn write_svraster_checkpoint(orig: &std::path::Path, pt: &std::path::Path) {
+    let o = Command::new("python3")
+        .arg(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../tools/svraster_checkpoint.py"
+        ))
+        .arg(orig)
+        .arg(pt)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+}
+
 #[test]
 fn svraster_checkpoints_render_as_the_model_they_hold() {
     if Command::new("python3").arg("--version").output().is_err() {
@@ -20,16 +35,7 @@ fn svraster_checkpoints_render_as_the_model_they_hold() {
     let orig = dir.path().join("orig.safetensors");
     svraster::scene::checkpoint::save(&scene, &orig).unwrap();
     let pt = dir.path().join("iter000300_model.pt");
-    let o = Command::new("python3")
-        .arg(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../tools/svraster_checkpoint.py"
-        ))
-        .arg(&orig)
-        .arg(&pt)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    write_svraster_checkpoint(&orig, &pt);
     let d = data.to_str().unwrap();
     let render = |model: &std::path::Path, out: &str| {
         let out = dir.path().join(out);
@@ -144,16 +150,7 @@ fn svraster_config_yaml_sets_background_and_ss() {
     let ckpts = dir.path().join("model/checkpoints");
     std::fs::create_dir_all(&ckpts).unwrap();
     let pt = ckpts.join("iter000300_model.pt");
-    let o = Command::new("python3")
-        .arg(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../tools/svraster_checkpoint.py"
-        ))
-        .arg(&orig)
-        .arg(&pt)
-        .output()
-        .unwrap();
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    write_svraster_checkpoint(&orig, &pt);
     let config = dir.path().join("model/config.yaml");
     let m = dir.path().join("m.safetensors");
     let import = |extra: &[&str]| -> (bool, Option<svraster::scene::Scene>, String) {
