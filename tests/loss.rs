@@ -175,6 +175,7 @@ fn pixel_losses_match_the_f64_reference() {
                     lambda_r: 0.0,
                     lambda_r_colour: 0.0,
                     dist_contracted: false,
+                    colour_straight: false,
                 },
                 None,
             );

@@ -328,6 +328,7 @@ fn gradients_match_the_reference_on_drawn_scenes() {
                 lambda_r: 0.0,
                 lambda_r_colour: 0.0,
                 dist_contracted: false,
+                colour_straight: false,
             }
         } else {
             LossSpec {
@@ -335,6 +336,7 @@ fn gradients_match_the_reference_on_drawn_scenes() {
                 lambda_r: rng.range(0.1, 2.0),
                 lambda_r_colour: 0.0,
                 dist_contracted: false,
+                colour_straight: false,
             }
         };
         {

@@ -177,6 +177,7 @@ fn random_spec(rng: &mut Rng) -> LossSpec {
         lambda_r: rng.range(0.2, 2.0),
         lambda_r_colour: 0.0,
         dist_contracted: false,
+        colour_straight: false,
     }
 }
 
@@ -206,6 +207,7 @@ fn only_term(pix: &[PixelWeights], spec: &LossSpec, t: usize) -> (Vec<PixelWeigh
         },
         lambda_r_colour: 0.0,
         dist_contracted: spec.dist_contracted,
+        colour_straight: spec.colour_straight,
     };
     (pix, spec)
 }
@@ -598,6 +600,7 @@ fn colour_only_point_rgb_matches_finite_differences_on_the_colours() {
             lambda_r: 0.0,
             lambda_r_colour: lc,
             dist_contracted: false,
+            colour_straight: false,
         };
         let an = grads_with(&c.scene, &params, &rays, c.k, &pix, &colour_only);
         assert!(
@@ -616,6 +619,7 @@ fn colour_only_point_rgb_matches_finite_differences_on_the_colours() {
                 lambda_r: 3.0 * lc,
                 lambda_r_colour: 0.0,
                 dist_contracted: false,
+                colour_straight: false,
             },
         };
         let base = evaluate(

@@ -29,7 +29,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) buffer BackParams 
     U32s point_off;   // per grid point + 1: start of its (voxel · 8 + corner) list
     U32s point_list;  // per voxel corner, grouped by grid point, ascending
     uint gather_span; // records a voxel sums per records_gather pass
-    uint pad1;
+    uint colour_straight; // 1: ∂L/∂rgb passes max(0, ·) straight through (SVRaster's)
     uint pad2;
     uint pad3;
 };

@@ -40,12 +40,13 @@ void main() {
     vec3 dn = vec3(B.vgrad.v[rec + VG_NRM], B.vgrad.v[rec + VG_NRM + 1u], B.vgrad.v[rec + VG_NRM + 2u]);
 
     // SH: the forward's clamp max(0, 0.5 + SH) passes the gradient where its colour
-    // (stored by preprocess) is positive.
+    // (stored by preprocess) is positive, or everywhere with colour_straight
+    // (SVRaster's backward, its mask commented out).
     vec3 centre = vec3(P.cs.v[4u * v], P.cs.v[4u * v + 1u], P.cs.v[4u * v + 2u]);
     float y[16];
     sh_basis(normalize(centre), degree, y);
     vec3 rgb = vec3(P.rgb.v[3u * v], P.rgb.v[3u * v + 1u], P.rgb.v[3u * v + 2u]);
-    drgb = mix(vec3(0.0), drgb, greaterThan(rgb, vec3(0.0)));
+    if (B.colour_straight == 0u) drgb = mix(vec3(0.0), drgb, greaterThan(rgb, vec3(0.0)));
     for (uint c = 0u; c < 3u; ++c) B.grad_sh0.v[3u * v + c] = y[0] * drgb[c];
     for (uint k = 1u; k <= stride; ++k) {
         vec3 gk = k <= nc ? y[k] * drgb : vec3(0.0);

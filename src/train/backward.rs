@@ -17,6 +17,7 @@
 
 use ash::vk;
 
+pub use super::config::ClampGrad;
 use crate::error::{Error, Result};
 use crate::gpu::kernels::push_constants;
 use crate::gpu::{
@@ -285,7 +286,8 @@ struct BackParams {
     point_off: u64,
     point_list: u64,
     gather_span: u32,
-    pad1: u32,
+    /// 1: the colour gradient passes the clamp straight through ([`ClampGrad::Straight`]).
+    colour_straight: u32,
     pad2: u32,
     pad3: u32,
 }
@@ -349,6 +351,7 @@ pub struct Backward {
     chunk_size: u32,
     /// Records per voxel one records_gather pass sums (the loop limit).
     gather_span: u32,
+    clamp_grad: ClampGrad,
     params: Buffer,
     lost: Buffer,
     dout: GrowBuffer,
@@ -420,6 +423,7 @@ impl Backward {
             } else {
                 u32::MAX
             },
+            clamp_grad: ClampGrad::Masked,
             params: ctx.buffer(
                 "backward.params",
                 std::mem::size_of::<BackParams>() as u64,
@@ -448,6 +452,16 @@ impl Backward {
     /// several passes).
     pub fn set_gather_span(&mut self, records: u32) {
         self.gather_span = records.max(1);
+    }
+
+    /// How the colour gradient passes the clamp max(0, 0.5 + SH) (default: masked).
+    pub fn set_colour_clamp_grad(&mut self, mode: ClampGrad) {
+        self.clamp_grad = mode;
+    }
+
+    /// The colour clamp's gradient rule in use.
+    pub fn colour_clamp_grad(&self) -> ClampGrad {
+        self.clamp_grad
     }
 
     /// Entries per backward dispatch (tests shrink it to exercise chunking).

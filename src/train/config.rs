@@ -152,6 +152,12 @@ pub struct TrainConfig {
     /// only gradient is 2λ·w_k·(c_k − gt) on the colours. `lambda_r=0
     /// lambda_r_colour=0.01` is SVRaster's setting (docs/PARITY.md item 5).
     pub lambda_r_colour: f32,
+    /// How the colour loss gradient passes the clamp c = max(0, 0.5 + SH): "masked"
+    /// (the clamp's derivative: zero where the colour is clamped) or "straight"
+    /// (straight through, as SVRaster: its `sh_compute.cu` backward has the mask
+    /// commented out, so a clamped colour's SH keep receiving the gradient and can come
+    /// back; docs/PARITY.md, the colour clamp's gradient).
+    pub colour_clamp_grad: ClampGrad,
     pub lambda_tv: f32,
     pub tv_until: f64,
     /// The TV penalty's form: "l2" (ours: Σ Δ² over the cube edges, zero gradient on
@@ -262,6 +268,7 @@ impl Default for TrainConfig {
             normal_dmean_from: 0.5,
             lambda_r: 0.01,
             lambda_r_colour: 0.0,
+            colour_clamp_grad: ClampGrad::Masked,
             lambda_tv: 1e-10,
             tv_until: 0.5,
             tv_form: TvForm::L2,
@@ -301,6 +308,17 @@ pub enum Layout {
 pub enum TvForm {
     L2,
     L1,
+}
+
+/// How a gradient passes the colour clamp (see [`TrainConfig::colour_clamp_grad`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ClampGrad {
+    /// The clamp's own derivative: no gradient where the colour is clamped.
+    #[default]
+    Masked,
+    /// Straight through: the gradient reaches the SH as if there were no clamp.
+    Straight,
 }
 
 /// Named presets (applied before `--set` overrides).

@@ -240,6 +240,8 @@ impl Trainer {
         let schedule = cfg.schedule();
         let mut tv = Tv::with_reduction(ctx, reduction)?;
         tv.set_form(cfg.tv_form);
+        let mut backward = Backward::with_reduction(ctx, reduction)?;
+        backward.set_colour_clamp_grad(cfg.colour_clamp_grad);
         Ok(Trainer {
             ctx: ctx.clone(),
             rng: rand_pcg::Pcg64::seed_from_u64(cfg.seed),
@@ -250,7 +252,7 @@ impl Trainer {
             grads,
             mom,
             renderer,
-            backward: Backward::with_reduction(ctx, reduction)?,
+            backward,
             ssim: Ssim::new(ctx)?,
             adam: Adam::new(ctx)?,
             tv,

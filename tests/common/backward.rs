@@ -8,7 +8,7 @@ use svraster::data::Camera;
 use svraster::gpu::Context;
 use svraster::raster::{FrameOutputs, RenderOptions, Renderer};
 use svraster::scene::{Scene, SceneGpu};
-use svraster::train::backward::{dout, Backward, EntryLosses, Gradients, Reduction};
+use svraster::train::backward::{dout, Backward, ClampGrad, EntryLosses, Gradients, Reduction};
 
 pub struct GpuGrads {
     pub geo: Vec<f32>,
@@ -180,6 +180,9 @@ pub fn gpu_grads_segmented(
     let stats = r.render_to_device(&gpu, cam, &opts, None).unwrap();
     let frame = r.last_frame().unwrap();
     let mut b = Backward::with_reduction(ctx, reduction).unwrap();
+    if spec.colour_straight {
+        b.set_colour_clamp_grad(ClampGrad::Straight);
+    }
     if let Some(c) = chunk {
         b.set_chunk_size(c);
         b.set_gather_span(c);

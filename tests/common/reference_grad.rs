@@ -85,6 +85,10 @@ pub struct LossSpec {
     /// The distortion on SVRaster's contracted axis (`depth_contracted` of the ray
     /// distance: x < 1 ? x : 2 − 1/x) instead of the ray distance.
     pub dist_contracted: bool,
+    /// The colour gradient passes max(0, 0.5 + SH) straight through (SVRaster's
+    /// backward) instead of the clamp's derivative. Not the gradient of the loss where a
+    /// colour is clamped: no finite-difference check applies there.
+    pub colour_straight: bool,
 }
 
 impl LossSpec {
@@ -697,9 +701,9 @@ fn backward_pixel(
             out.geo[scene.corners[i][cc] as usize] += dg[cc];
         }
         // Colour: ∂L/∂c = w (rgb_weight + λ_R·2/3 (c − gt) + λ_Rc·2 (c − gt)), through
-        // max(0, ·) to SH.
+        // max(0, ·) to SH (or past it, straight through).
         for ch in 0..3 {
-            if c.pre[ch] <= 0.0 {
+            if c.pre[ch] <= 0.0 && !spec.colour_straight {
                 continue;
             }
             let diff = c.rgb[ch] - pw.gt[ch];

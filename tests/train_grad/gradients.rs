@@ -28,6 +28,7 @@ fn optional_outputs_off_give_the_same_gradients() {
         lambda_r: 0.5,
         lambda_r_colour: 0.0,
         dist_contracted: false,
+        colour_straight: false,
     };
     let a = gpu_grads_with(
         &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, on,
@@ -63,6 +64,7 @@ fn optional_outputs_off_give_the_same_gradients() {
         lambda_r: 0.5,
         lambda_r_colour: 0.0,
         dist_contracted: false,
+        colour_straight: false,
     };
     // Distortion without normals (the no-normal kernels with the distortion terms).
     let dist_only = FrameOutputs {
@@ -106,6 +108,7 @@ fn generic_walk_gradients_equal_the_8_lane_walk() {
             lambda_r: 0.5,
             lambda_r_colour: 0.0,
             dist_contracted: false,
+            colour_straight: false,
         };
         let red = Reduction::Ordered;
         let fast = gpu_grads_walk(&ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false);
@@ -160,6 +163,7 @@ fn backward_matches_reference_on_random_scenes() {
                 lambda_r: rng.range(0.1, 2.0),
                 lambda_r_colour: 0.0,
                 dist_contracted: false,
+                colour_straight: false,
             };
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
             for red in reductions(&ctx) {
@@ -209,6 +213,7 @@ fn each_loss_term_alone_and_small_chunks() {
             lambda_r: if term == 5 || term == 6 { 1.0 } else { 0.0 },
             lambda_r_colour: if term == 7 { 0.8 } else { 0.0 },
             dist_contracted: term == 8,
+            colour_straight: false,
         };
         for k in 1..=3u32 {
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
@@ -264,6 +269,7 @@ fn segmented_frame_gradients_match_reference() {
             lambda_r: 0.5,
             lambda_r_colour: 0.3,
             dist_contracted: seg == 3,
+            colour_straight: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -316,6 +322,7 @@ fn one_segment_per_tile_gives_the_unsegmented_gradients() {
         lambda_r: 0.4,
         lambda_r_colour: 0.0,
         dist_contracted: false,
+        colour_straight: false,
     };
     let all = FrameOutputs {
         normals: true,
@@ -389,6 +396,7 @@ fn long_tile_lists_at_the_default_chunk_size() {
         lambda_r: 1.0,
         lambda_r_colour: 0.0,
         dist_contracted: false,
+        colour_straight: false,
     };
     let reference = grads(&scene, &cam, 1, &pix, &spec);
     let hit = reference.priority.iter().filter(|&&p| p > 0.0).count();
@@ -444,6 +452,7 @@ fn sparse_tiles_backward_matches_reference() {
             lambda_r: 0.5,
             lambda_r_colour: 0.0,
             dist_contracted: false,
+            colour_straight: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -503,6 +512,7 @@ fn near_opaque_voxels_backward_matches_reference() {
             lambda_r: 1.0,
             lambda_r_colour: 0.0,
             dist_contracted: false,
+            colour_straight: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -558,6 +568,7 @@ fn contracted_distortion_matches_reference_across_distance_one() {
             lambda_r: if all { 0.5 } else { 0.0 },
             lambda_r_colour: 0.0,
             dist_contracted: true,
+            colour_straight: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         // The contraction changes the gradients (the test sees it).
@@ -568,6 +579,7 @@ fn contracted_distortion_matches_reference_across_distance_one() {
             &pix,
             &LossSpec {
                 dist_contracted: false,
+                colour_straight: false,
                 ..spec
             },
         );
@@ -630,6 +642,7 @@ fn frame_mean_background_gradients_match_reference() {
             lambda_r: 0.5,
             lambda_r_colour: 0.0,
             dist_contracted: false,
+            colour_straight: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         // The frame mean changes the gradients (the test sees it).
@@ -702,6 +715,83 @@ fn frame_mean_background_gradients_match_reference() {
     println!(
         "worst relative errors: geo {:.2e} sh0 {:.2e} shs {:.2e} priority {:.2e}",
         worst[0], worst[1], worst[2], worst[3]
+    );
+    finish(&ctx);
+}
+
+/// The colour clamp's two gradient rules (`colour_clamp_grad`): with many colours
+/// clamped (SH DC drawn so that about half of 0.5 + SH fall below 0), the masked and
+/// the straight-through backward each match the f64 reference of their rule, on every
+/// reduction, for the pixel rgb and both per-point RGB terms; the two rules differ on
+/// the clamped voxels' SH and agree on the densities and priorities.
+#[test]
+fn colour_clamp_straight_through_matches_reference() {
+    let ctx = context();
+    let mut rng = Rng(0x6a4d_0c1a);
+    let mut scene = random_scene(&mut rng, 6, 2);
+    for g in scene.geo.iter_mut() {
+        *g = (rng.range(-5.0, 2.0)) as f32;
+    }
+    for c in scene.sh0.iter_mut() {
+        for x in c.iter_mut() {
+            *x = rng.range(-4.0, 1.0) as f32;
+        }
+    }
+    let mut cam = camera_outside(&mut rng, &scene, 33, 20);
+    while ambiguous(&scene, &cam, 2) {
+        cam = camera_outside(&mut rng, &scene, 33, 20);
+    }
+    let np = (cam.width * cam.height) as usize;
+    let pix = random_weights(&mut rng, np, [true, false, false, false, false]);
+    let mut worst = [0.0f64; 4];
+    let mut refs = Vec::new();
+    for straight in [false, true] {
+        let spec = LossSpec {
+            lambda_dist: 0.0,
+            lambda_r: 0.5,
+            lambda_r_colour: 0.3,
+            dist_contracted: false,
+            colour_straight: straight,
+        };
+        let reference = grads(&scene, &cam, 2, &pix, &spec);
+        for red in reductions(&ctx) {
+            let g = gpu_grads(&ctx, &scene, &cam, 2, &pix, &spec, red, None);
+            compare(
+                &format!("straight {straight} {red:?}"),
+                &g,
+                &reference,
+                &mut worst,
+            );
+        }
+        refs.push(reference);
+    }
+    let (m, s) = (&refs[0], &refs[1]);
+    let differ = |a: &[f64], b: &[f64]| {
+        a.iter()
+            .zip(b)
+            .filter(|(x, y)| (*x - *y).abs() > 1e-6 * (1.0 + x.abs()))
+            .count()
+    };
+    let sh0 = |r: &RefGrads| r.sh0.iter().flatten().copied().collect::<Vec<f64>>();
+    let d_sh = differ(&sh0(m), &sh0(s)) + differ(&m.shs, &s.shs);
+    println!(
+        "{d_sh} SH gradients differ between the rules; worst relative errors: geo {:.2e} \
+         sh0 {:.2e} shs {:.2e} priority {:.2e}",
+        worst[0], worst[1], worst[2], worst[3]
+    );
+    assert!(
+        d_sh > 50,
+        "too few clamped colours seen ({d_sh} SH gradients differ)"
+    );
+    assert_eq!(
+        differ(&m.geo, &s.geo),
+        0,
+        "the clamp rule changed a density gradient"
+    );
+    assert_eq!(
+        differ(&m.priority, &s.priority),
+        0,
+        "the clamp rule changed a priority"
     );
     finish(&ctx);
 }

@@ -119,7 +119,7 @@ impl Backward {
             point_off: points.map_or(0, |p| p.off.address()),
             point_list: points.map_or(0, |p| p.list.address()),
             gather_span: self.gather_span,
-            pad1: 0,
+            colour_straight: u32::from(self.clamp_grad == ClampGrad::Straight),
             pad2: 0,
             pad3: 0,
         };
