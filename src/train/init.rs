@@ -263,6 +263,7 @@ impl Trainer {
             order: Vec::new(),
             iter: 0,
             timing: None,
+            timing_spare: None,
             last_times: Vec::new(),
             stats,
             topology,

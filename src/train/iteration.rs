@@ -2,7 +2,7 @@
 //! what recording it again needs), its loss weights, and an iteration submitted and not
 //! yet checked ([`Queued`]). The recording and settling are in queue.rs.
 
-use crate::gpu::Ticket;
+use crate::gpu::{Ticket, Timestamps};
 use crate::raster::{FrameCheck, FrameOutputs, RenderOptions};
 
 /// The loss weights and learning-rate scale of one iteration (the schedule's switches
@@ -36,6 +36,9 @@ pub(super) struct Queued {
     pub(super) check: FrameCheck,
     /// Byte offset of its go word in `Trainer::go`.
     pub(super) go_offset: u64,
+    /// Its stage timestamps (frame, update), when timing is on: read once it is
+    /// settled, while the iteration behind it runs.
+    pub(super) timing: Option<(Timestamps, Timestamps)>,
 }
 
 /// Go words in `Trainer::go`, used in turn.

@@ -25,6 +25,7 @@ impl Trainer {
         self.ctx.wait(q.ticket)?;
         self.check_lost()?;
         let mut stats = self.renderer.checked_stats(&q.check)?;
+        self.settle_timing(q.timing, stats.complete())?;
         if !stats.complete() {
             self.redone += 1;
             if !self.renderer.grow_for(&stats)? {
@@ -47,6 +48,7 @@ impl Trainer {
         self.ctx.wait(prev.ticket)?;
         self.check_lost()?;
         let stats = self.renderer.checked_stats(&prev.check)?;
+        self.settle_timing(prev.timing, stats.complete())?;
         if stats.complete() {
             self.last_stats = Some(stats);
             return Ok(());
@@ -56,6 +58,8 @@ impl Trainer {
             .take()
             .ok_or_else(|| Error::Gpu("no iteration queued behind a skipped one".into()))?;
         self.ctx.wait(cur.ticket)?;
+        // Its update was skipped too: its timestamps time nothing.
+        self.return_timing(cur.timing);
         // Measured on parameters one update stale: a capacity hint, grown for as well.
         let cur_stats = self.renderer.checked_stats(&cur.check)?;
         self.redone += 2;
@@ -72,6 +76,23 @@ impl Trainer {
         self.last_stats = Some(stats);
         let q = self.submit_iteration(&cur.plan, None)?;
         self.queued = Some(q);
+        Ok(())
+    }
+
+    /// Reads a settled iteration's stage times (when its frame was complete: an
+    /// incomplete one's update was skipped, and its redo is timed by `run_now`) and
+    /// frees its timestamp pair.
+    fn settle_timing(
+        &mut self,
+        timing: Option<(Timestamps, Timestamps)>,
+        complete: bool,
+    ) -> Result<()> {
+        if let (Some(t), true) = (timing.as_ref(), complete) {
+            let mut all = t.0.stages()?;
+            all.extend(t.1.stages()?);
+            self.push_stage_times(all);
+        }
+        self.return_timing(timing);
         Ok(())
     }
 
@@ -106,13 +127,22 @@ impl Trainer {
         self.renderer.prepare(&self.scene, &cam, &plan.opts)?;
         let go_offset = self.next_go();
         let ctx = self.ctx.clone();
-        let (check, ticket) =
-            ctx.submit(|cmd| self.record_gated(cmd, plan, &cam, go_offset, after, &mut None))?;
+        let mut timing = self.timing.take().or_else(|| self.timing_spare.take());
+        let submitted =
+            ctx.submit(|cmd| self.record_gated(cmd, plan, &cam, go_offset, after, &mut timing));
+        let (check, ticket) = match submitted {
+            Ok(s) => s,
+            Err(e) => {
+                self.return_timing(timing);
+                return Err(e);
+            }
+        };
         Ok(Queued {
             plan: plan.clone(),
             ticket,
             check,
             go_offset,
+            timing,
         })
     }
 
@@ -163,14 +193,17 @@ impl Trainer {
     pub(super) fn run_now(&mut self, plan: &IterPlan) -> Result<FrameStats> {
         self.apply(plan);
         let cam = self.cams[plan.view].clone();
-        let mut timing = self.timing.take();
+        let mut timing = self.timing.take().or_else(|| self.timing_spare.take());
         let res = self.run_now_timed(plan, &cam, &mut timing);
-        if let (Some(t), Ok(_)) = (timing.as_ref(), res.as_ref()) {
-            let mut all = t.0.stages()?;
-            all.extend(t.1.stages()?);
-            self.last_times = all;
-        }
-        self.timing = timing;
+        let read = match (timing.as_ref(), res.as_ref()) {
+            (Some(t), Ok(_)) => t.0.stages().and_then(|mut all| {
+                all.extend(t.1.stages()?);
+                Ok(all)
+            }),
+            _ => Ok(Vec::new()),
+        };
+        self.return_timing(timing);
+        self.push_stage_times(read?);
         res
     }
 

@@ -81,8 +81,11 @@ pub struct StepInfo {
     pub adapt: Option<AdaptReport>,
 }
 
-/// Per-stage timestamps of the last iteration (ms), when enabled.
+/// Per-stage timestamps of one iteration (ms, in recording order), when enabled.
 pub type StageTimes = Vec<(String, f64)>;
+
+/// Settled iterations whose stage times [`Trainer::take_stage_times`] keeps.
+pub const KEPT_STAGE_TIMES: usize = 64;
 
 /// The trainer: scene and optimiser state on the device plus the training views.
 pub struct Trainer {
@@ -108,8 +111,12 @@ pub struct Trainer {
     pub(super) rng: rand_pcg::Pcg64,
     pub(super) order: Vec<usize>,
     pub(super) iter: u32,
+    /// Stage timestamps (frame, update) for the next iteration recorded, when timing
+    /// is on; `timing_spare` is the second pair, so that the iteration queued behind
+    /// another records into its own while the first one's are still to be read.
     pub(super) timing: Option<(Timestamps, Timestamps)>,
-    pub(super) last_times: StageTimes,
+    pub(super) timing_spare: Option<(Timestamps, Timestamps)>,
+    pub(super) last_times: Vec<StageTimes>,
     pub(super) stats: StatsPass,
     pub(super) topology: Topology,
     pub(super) budget: u64,
@@ -162,25 +169,49 @@ impl Trainer {
         self.backward.reduction()
     }
 
-    /// Records per-stage GPU timestamps from now on (see [`Trainer::stage_times`]).
+    /// Records per-stage GPU timestamps from now on (see [`Trainer::take_stage_times`]).
+    /// Iterations stay queued: each one's timestamps are read when the host settles
+    /// it, while the next one runs, so they time the iterations as training runs them.
     pub fn enable_timing(&mut self) -> Result<()> {
-        if self.timing.is_none() {
-            self.timing = Some((
-                Timestamps::new(&self.ctx, 16)?,
-                Timestamps::new(&self.ctx, 16)?,
-            ));
+        if self.timing.is_none() && self.timing_spare.is_none() {
+            let pair = || -> Result<(Timestamps, Timestamps)> {
+                Ok((
+                    Timestamps::new(&self.ctx, 16)?,
+                    Timestamps::new(&self.ctx, 16)?,
+                ))
+            };
+            self.timing = Some(pair()?);
+            self.timing_spare = Some(pair()?);
         }
         Ok(())
     }
 
-    /// Stops recording stage timestamps (iterations are queued again).
+    /// Starts or stops recording stage timestamps.
     pub fn set_timing(&mut self, on: bool) -> Result<()> {
         if on {
             return self.enable_timing();
         }
         self.flush()?;
         self.timing = None;
+        self.timing_spare = None;
+        self.last_times.clear();
         Ok(())
+    }
+
+    /// Whether stage timestamps are recorded.
+    pub fn timing(&self) -> bool {
+        self.timing.is_some() || self.timing_spare.is_some()
+    }
+
+    /// A timestamp pair back to the free slots after its iteration was read.
+    pub(super) fn return_timing(&mut self, t: Option<(Timestamps, Timestamps)>) {
+        if let Some(p) = t {
+            if self.timing.is_none() {
+                self.timing = Some(p);
+            } else {
+                self.timing_spare = Some(p);
+            }
+        }
     }
 
     /// Turns the work counters of the frame and backward walks on or off (benchmarks:
@@ -259,10 +290,24 @@ impl Trainer {
         self.last_stats
     }
 
-    /// Stage times (ms) of the last iteration: the frame's stages, then losses,
+    /// Stage times (ms) of each iteration the host settled since the last call, oldest
+    /// first (with queued iterations a step's own are settled by the next step or a
+    /// flush; at most the last [`KEPT_STAGE_TIMES`]): the frame's stages, then losses,
     /// backward, optimizer.
-    pub fn stage_times(&self) -> &StageTimes {
-        &self.last_times
+    pub fn take_stage_times(&mut self) -> Vec<StageTimes> {
+        std::mem::take(&mut self.last_times)
+    }
+
+    /// Keeps one settled iteration's stage times (the oldest dropped beyond
+    /// [`KEPT_STAGE_TIMES`]).
+    pub(super) fn push_stage_times(&mut self, times: StageTimes) {
+        if times.is_empty() {
+            return;
+        }
+        if self.last_times.len() >= KEPT_STAGE_TIMES {
+            self.last_times.remove(0);
+        }
+        self.last_times.push(times);
     }
 
     /// Fast-forwards the iteration counter and random state to `iter` (resume); the
@@ -370,10 +415,11 @@ impl Trainer {
     /// before its update. Logged iterations, adaptive steps and anything that reads the
     /// model ([`Trainer::flush`]) wait for the queue to drain. Without conditional
     /// rendering (a host's device that did not enable it) the frame is its own
-    /// submission; with stage timing or work counters on, each iteration is waited for.
+    /// submission; with work counters on, each iteration is waited for (stage timestamps
+    /// stay queued: read when the iteration is settled).
     pub fn step(&mut self, measure: bool) -> Result<StepInfo> {
         let plan = self.plan_iteration();
-        let queue = self.single && self.pipelined && self.timing.is_none() && !self.counting;
+        let queue = self.single && self.pipelined && !self.counting;
         let mut own = None;
         if queue {
             let after = self.queued.as_ref().map(|q| q.go_offset);

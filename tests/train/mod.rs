@@ -7,7 +7,7 @@ use common::{context, finish, mean_psnr};
 use svraster::data::{self, demo};
 use svraster::scene::Scene;
 use svraster::train::config::TrainConfig;
-use svraster::train::trainer::{uniform_grid, Trainer};
+use svraster::train::trainer::{uniform_grid, StageTimes, Trainer};
 use tempfile::TempDir;
 
 /// The demo dataset in a fresh directory named `svraster-train-<name>-…`, removed when
@@ -59,9 +59,11 @@ fn one_submission_per_iteration_same_model_as_two() {
     }
     let dir = demo_data("single", 32);
     let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
-    // (single submission, queued behind the next) → model, redone frames, and per
-    // iteration without a redo: (submissions, fence waits, throttle waits).
-    let run = |single: bool, queued: bool| -> (Scene, u64, Vec<(u64, u64, u64)>) {
+    // (single submission, queued behind the next, stage timestamps) → model, redone
+    // frames, per iteration without a redo: (submissions, fence waits, throttle waits),
+    // and the stage times of every settled iteration.
+    type Run = (Scene, u64, Vec<(u64, u64, u64)>, Vec<StageTimes>);
+    let run = |single: bool, queued: bool, timing: bool| -> Run {
         let mut cfg = quick(12);
         cfg.grid_level = 4;
         cfg.ss = 3.0;
@@ -73,7 +75,11 @@ fn one_submission_per_iteration_same_model_as_two() {
         t.set_chunk_size(16);
         // Chunks split the unsegmented walks; a GPU's default segments never run short.
         t.set_segment_entries(0).unwrap();
+        if timing {
+            t.enable_timing().unwrap();
+        }
         let mut per_iter = Vec::new();
+        let mut times = Vec::new();
         for i in 0..cfg.iters {
             let c0 = ctx.queue_counters();
             let redone = t.frames_redone();
@@ -84,13 +90,17 @@ fn one_submission_per_iteration_same_model_as_two() {
             if t.frames_redone() == redone && !measure {
                 per_iter.push((c.submits, c.fence_waits, c.throttle_waits));
             }
+            times.extend(t.take_stage_times());
         }
         t.check_finite().unwrap();
-        (t.scene().unwrap(), t.frames_redone(), per_iter)
+        times.extend(t.take_stage_times());
+        (t.scene().unwrap(), t.frames_redone(), per_iter, times)
     };
-    let (queued, redone_queued, costs_queued) = run(true, true);
-    let (one, redone_one, costs_one) = run(true, false);
-    let (two, redone_two, costs_two) = run(false, false);
+    let (queued, redone_queued, costs_queued, _) = run(true, true, false);
+    let (one, redone_one, costs_one, _) = run(true, false, false);
+    let (two, redone_two, costs_two, _) = run(false, false, false);
+    // Stage timestamps keep the iterations queued, and time each one once.
+    let (timed, redone_timed, costs_timed, times) = run(true, true, true);
     println!(
         "redone: {redone_queued} (queued), {redone_one} (one submission), {redone_two} (two); \
          steady iterations (submits, waits, throttles): {costs_queued:?} vs {costs_one:?} \
@@ -119,8 +129,38 @@ fn one_submission_per_iteration_same_model_as_two() {
         "an iteration without growth is one submission and one wait: {costs_one:?}"
     );
     assert!(costs_two.iter().all(|&c| c == (2, 2, 0)), "{costs_two:?}");
+    assert_eq!(redone_timed, redone_queued);
+    assert!(
+        costs_timed.len() == costs_queued.len()
+            && costs_timed
+                .iter()
+                .all(|&c| c == (1, 0, 1) || c == (1, 0, 0)),
+        "timestamps changed the queue traffic: {costs_timed:?} vs {costs_queued:?}"
+    );
+    assert_eq!(
+        times.len(),
+        12,
+        "one set of stage times per iteration (redone ones included)"
+    );
+    for (i, st) in times.iter().enumerate() {
+        let names: Vec<&str> = st.iter().map(|(n, _)| n.as_str()).collect();
+        for stage in ["sort", "composite", "backward.walk", "optimizer.geo"] {
+            assert!(
+                names.contains(&stage),
+                "settled iteration {i}: no {stage} in {names:?}"
+            );
+        }
+        assert!(
+            st.iter().all(|(_, ms)| ms.is_finite() && *ms >= 0.0),
+            "settled iteration {i}: {st:?}"
+        );
+    }
     let same = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
-    for (name, m) in [("queued", &queued), ("two submissions", &two)] {
+    for (name, m) in [
+        ("queued", &queued),
+        ("two submissions", &two),
+        ("queued with timestamps", &timed),
+    ] {
         assert!(same(&one.geo, &m.geo), "densities differ ({name})");
         assert!(
             same(one.sh0.as_flattened(), m.sh0.as_flattened()),

@@ -340,6 +340,9 @@ fn train_interrupt_resume_eval_and_bench() {
     assert!(ok, "bench train failed: {out}\n{err}");
     let v: serde_json::Value = serde_json::from_str(out.trim()).expect("bench JSON");
     assert!(v["median_ms_per_iter"].as_f64().unwrap() > 0.0);
+    // Every timed (queued) iteration's stage times were read, once.
+    assert_eq!(v["timed_iterations"], 3, "{v}");
+    assert!(v["wall_timed_median_ms_per_iter"].as_f64().unwrap() > 0.0);
     // The full-model regime: the timed iterations used the final SH degree.
     assert_eq!(v["sh_degree"], 3, "{v}");
     for s in [
