@@ -3,7 +3,10 @@
 # (issues "Real GPUs", "The onesweep sort", "Quality"; what the 2026-11-27 H200 run did).
 # Prepare here: apt-get update; ../shared/gpu/prepare.sh .gpu (../shared/gpu/README.md);
 # echo /.gpu/ >> .git/info/exclude. On the device, from the checkout's root, carry .gpu:
-#   bash tools/gpu_check.sh .gpu [SECONDS=570] [VARIANT_SETTINGS...]
+#   bash tools/gpu_check.sh .gpu [SECONDS=570] [VARIANT...]
+# VARIANT: NAME:key=value[,key=value...] (a bare key=value[,...] is named variantN), one
+# training each, in order, while time is left; SKIP_SVR=1 leaves SVRaster out (its build,
+# fixture and run: ~170 s more for the variants).
 # Steps (each capped so later ones still run; outputs go to $OUT as they are made):
 #   1. Vulkan info; SVRaster's CUDA build, then its small fixture model (300 iterations,
 #      1/4 size, its own test renders: $OUT/svr_tiny.tgz, for
@@ -14,13 +17,13 @@
 #   4. lego 400², 6 000 iterations, the default preset (timed alone), eval on the 50
 #      test views, bench render of that model
 #   5. SVRaster on the same data and card, 6 000 iterations (timed alone)
-#   6. with what is left: the same training with `--set` VARIANT_SETTINGS (e.g.
-#      reset_adam_at_adapt=true), eval
+#   6. with what is left: the same training per VARIANT (e.g.
+#      straight:colour_clamp_grad=straight), eval
 # $OUT: run.log (everything), res.tgz (logs, JSON, stats), svr_tiny.tgz.
 # A dry run of the flow on any machine: SKIP_TESTS=1 ITERS=60 OUT=/tmp/o bash tools/gpu_check.sh .gpu
 set -u
 G=$(cd "${1:-.gpu}" && pwd); BUDGET=${2:-570}; shift 2 2>/dev/null || shift $#
-VARIANT=("$@"); ITERS=${ITERS:-6000}
+VARIANTS=("$@"); ITERS=${ITERS:-6000}
 O=${OUT:-/tmp/out}; X=/tmp/x; mkdir -p "$O" "$X"
 exec > >(tee -a "$O/run.log") 2>&1
 t0=$(date +%s)
@@ -33,7 +36,7 @@ stamp setup
 kit_lego
 nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
 P=$(cat "$G/project_path")
-if [ -f "$G/svr/run_svr.sh" ]; then
+if [ -f "$G/svr/run_svr.sh" ] && [ -z "${SKIP_SVR:-}" ]; then
   ( bash "$G/svr/run_svr.sh" build > $X/svr_build.log 2>&1; echo "svr build rc=$?" >> $X/svr_build.log
     SVR_SLIM=0 SVR_TRAIN_EXTRA_ARGS="--init_n_level 4 --res_downscale 4" timeout -s INT 150 \
       bash "$G/svr/run_svr.sh" run /tmp/lego /tmp/svr_tiny 300 > $X/svr_tiny.log 2>&1
@@ -108,5 +111,11 @@ if [ -n "${SVR:-}" ]; then
   python3 -c "import json; d=json.load(open('$X/svr_result.json')); print('SVRaster', {k: d.get(k) for k in ('train_wall_s', 'train_iter_time_s', 'n_voxels', 'fps', 'psnr', 'ssim')})" || tail -8 $X/svr_run.log
   pack
 fi
-if [ ${#VARIANT[@]} -gt 0 ] && [ $(left) -gt 110 ]; then RES=40; train variant "${VARIANT[@]}"; fi
+i=0
+for spec in "${VARIANTS[@]}"; do
+  case $spec in *:*) name=${spec%%:*}; kvs=${spec#*:};; *) name=variant$i; kvs=$spec;; esac
+  i=$((i + 1)); IFS=, read -ra KV <<< "$kvs"
+  [ $(left) -gt 110 ] || { echo "no time left for variant $name (${KV[*]})"; continue; }
+  RES=40; train "$name" "${KV[@]}"
+done
 stamp done; pack
