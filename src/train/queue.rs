@@ -79,20 +79,23 @@ impl Trainer {
         Ok(())
     }
 
-    /// Reads a settled iteration's stage times (when its frame was complete: an
+    /// Reads a settled iteration's stage times if `done` (its frame complete: an
     /// incomplete one's update was skipped, and its redo is timed by `run_now`) and
     /// frees its timestamp pair.
     fn settle_timing(
         &mut self,
         timing: Option<(Timestamps, Timestamps)>,
-        complete: bool,
+        done: bool,
     ) -> Result<()> {
-        if let (Some(t), true) = (timing.as_ref(), complete) {
-            let mut all = t.0.stages()?;
-            all.extend(t.1.stages()?);
-            self.push_stage_times(all);
-        }
+        let read = match (timing.as_ref(), done) {
+            (Some(t), true) => t.0.stages().and_then(|mut all| {
+                all.extend(t.1.stages()?);
+                Ok(all)
+            }),
+            _ => Ok(Vec::new()),
+        };
         self.return_timing(timing);
+        self.push_stage_times(read?);
         Ok(())
     }
 
@@ -195,15 +198,7 @@ impl Trainer {
         let cam = self.cams[plan.view].clone();
         let mut timing = self.timing.take().or_else(|| self.timing_spare.take());
         let res = self.run_now_timed(plan, &cam, &mut timing);
-        let read = match (timing.as_ref(), res.as_ref()) {
-            (Some(t), Ok(_)) => t.0.stages().and_then(|mut all| {
-                all.extend(t.1.stages()?);
-                Ok(all)
-            }),
-            _ => Ok(Vec::new()),
-        };
-        self.return_timing(timing);
-        self.push_stage_times(read?);
+        self.settle_timing(timing, res.is_ok())?;
         res
     }
 
