@@ -37,6 +37,10 @@ pub struct SortArgs {
     /// Untimed warm-up runs.
     #[arg(long, default_value_t = 2)]
     warmup: u32,
+    /// Polls of an unpublished look-back word before the pass recounts that tile itself
+    /// (default: the device's, 256 on CPU devices, 4096 on GPUs).
+    #[arg(long)]
+    spin: Option<u32>,
     /// Seed of the random keys.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -72,6 +76,8 @@ struct SortReport {
     vary: String,
     /// The pass kernel (`SortPass::name`).
     pass_kernel: &'static str,
+    /// Look-back polls before the fallback recount.
+    spin_limit: u32,
     passes: u32,
     /// Bit p set: pass p was skipped (its digit is the same in every key).
     skipped_passes: u32,
@@ -112,6 +118,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         ref pass,
         runs,
         warmup,
+        spin,
         seed,
         json,
     } = *args;
@@ -190,6 +197,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
 
     let mut sorter = RadixSort::with_pass(ctx, n, pass).context("creating the radix sort")?;
     sorter.set_skip_constant(!all_passes);
+    sorter.set_spin_limit(spin);
     let scratch = SortScratch::new(ctx, n)?;
     let src_k = ctx.buffer_from("bench.keys.src", &keys)?;
     let src_v = ctx.buffer_from("bench.values.src", &values)?;
@@ -280,6 +288,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         bits: format!("{}..{}", bits.start, bits.end),
         vary: format!("{}..{}", vary.start, vary.end),
         pass_kernel: pass.name(),
+        spin_limit: spin.unwrap_or_else(|| ctx.info().lookback_spin_limit()),
         passes,
         skipped_passes: skipped,
         runs,

@@ -8,7 +8,11 @@
 
 use std::process::Command;
 
-fn run(threads: &str, pass: &str) {
+fn run(threads: &str, pass: &str) -> serde_json::Value {
+    run_with(threads, pass, &[])
+}
+
+fn run_with(threads: &str, pass: &str, extra: &[&str]) -> serde_json::Value {
     let out = Command::new(env!("CARGO_BIN_EXE_svraster"))
         .args([
             "--validation",
@@ -24,6 +28,7 @@ fn run(threads: &str, pass: &str) {
             "--pass",
             pass,
         ])
+        .args(extra)
         .env("LP_NUM_THREADS", threads)
         .output()
         .expect("run svraster");
@@ -43,6 +48,7 @@ fn run(threads: &str, pass: &str) {
     }
     assert_eq!(v["verified"], true);
     assert_eq!(v["runs"], 20);
+    v
 }
 
 #[test]
@@ -57,6 +63,14 @@ fn repeated_sort_two_threads() {
 fn repeated_sort_four_threads() {
     run("4", "direct");
     run("4", "c128");
+    // `--spin 0`: every predecessor not yet published is recounted at once, so the
+    // fallback runs in every pass that meets one — and the result is still verified.
+    let v = run_with("4", "c128", &["--spin", "0"]);
+    assert_eq!(v["spin_limit"], 0, "{v}");
+    assert!(
+        v["lookback"]["fallbacks_per_run"].as_f64().unwrap() > 0.0,
+        "no fallback with --spin 0: {v}"
+    );
 }
 
 #[test]

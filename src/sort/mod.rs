@@ -322,8 +322,7 @@ impl RadixSort {
     /// Look-back polls of a predecessor tile before its digits are recounted (default:
     /// [`DeviceInfo::lookback_spin_limit`](crate::gpu::DeviceInfo::lookback_spin_limit)).
     /// 0 recounts every predecessor that has not published yet, so tests reach the
-    /// fallback.
-    #[doc(hidden)]
+    /// fallback; `bench sort --spin` sweeps it.
     pub fn set_spin_limit(&mut self, polls: Option<u32>) {
         self.spin_limit = polls;
     }
