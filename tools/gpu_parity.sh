@@ -9,6 +9,9 @@
 #   rcolour    SVRaster's colour-only per-point RGB loss (item 5)
 #   tvl1       SVRaster's L1 TV with its tie rule (item 6)
 #   dist       SVRaster's distortion: 0.1 from half the run, contracted axis (item 8)
+#   straight   the colour gradient straight through the clamp, as SVRaster (item 3)
+#   svrcolour  that with SVRaster's colour rates at 6 000 iterations (÷ sche_mult 0.3)
+#   svrall     that with its density rate too (0.025 ÷ 0.3) and its Adam resets (item 4)
 # Prepare here with ../shared/gpu/prepare.sh .gpu (../shared/gpu/README.md), then on the
 # device, from the checkout's root:
 #   bash tools/gpu_parity.sh .gpu [SECONDS] [VARIANTS...]
@@ -19,7 +22,7 @@
 set -u
 G=$(cd "${1:-.gpu}" && pwd); BUDGET=${2:-540}; shift 2 2>/dev/null || shift $#
 O=${OUT:-/tmp/out}; mkdir -p "$O"; ITERS=${ITERS:-6000}
-VARIANTS=("$@"); [ ${#VARIANTS[@]} -gt 0 ] || VARIANTS=(base suball adam rcolour tvl1 dist)
+VARIANTS=("$@"); [ ${#VARIANTS[@]} -gt 0 ] || VARIANTS=(base suball adam rcolour tvl1 dist straight svrcolour svrall)
 . "$(dirname "$0")/gpu_kit.sh"
 kit_lego
 start=$(date +%s); : > "$O/parity.jsonl"
@@ -31,6 +34,10 @@ for v in "${VARIANTS[@]}"; do
     rcolour) S=(--set lambda_r=0 --set lambda_r_colour=0.01) ;;
     tvl1) S=(--set tv_form=l1) ;;
     dist) S=(--set lambda_dist=0.1 --set dist_from=0.5 --set dist_contracted=true) ;;
+    straight) S=(--set colour_clamp_grad=straight) ;;
+    svrcolour) S=(--set colour_clamp_grad=straight --set lr_sh0=0.0333 --set lr_shs=0.000833) ;;
+    svrall) S=(--set colour_clamp_grad=straight --set lr_sh0=0.0333 --set lr_shs=0.000833
+               --set lr_geo=0.0833 --set reset_adam_at_adapt=true) ;;
     *) echo "unknown variant $v"; continue ;;
   esac
   left=$(( BUDGET - ($(date +%s) - start) ))
