@@ -198,11 +198,6 @@ impl Trainer {
         Ok(())
     }
 
-    /// Whether stage timestamps are recorded.
-    pub fn timing(&self) -> bool {
-        self.timing.is_some() || self.timing_spare.is_some()
-    }
-
     /// A timestamp pair back to the free slots after its iteration was read.
     pub(super) fn return_timing(&mut self, t: Option<(Timestamps, Timestamps)>) {
         if let Some(p) = t {
