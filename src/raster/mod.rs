@@ -44,6 +44,7 @@ use plan::Plan;
 pub use plan::{FrameGeometry, FrameOutputs};
 pub use readback::{FrameCheck, FrameStats, Gate, Image, CHECK_SLOTS};
 pub use segments::auto_segment_entries;
+pub use stream::StageTimes;
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};

@@ -8,8 +8,12 @@ use super::readback::image_from_channels;
 use super::{FrameCheck, FrameStats, Image, RenderOptions, Renderer, CHANNELS};
 use crate::camera::Camera;
 use crate::error::Error;
-use crate::gpu::{recorder, Ticket};
+use crate::gpu::{recorder, Ticket, Timestamps};
 use crate::scene::SceneGpu;
+
+/// Per-stage GPU durations of one frame, in recording order (milliseconds), as
+/// [`Timestamps::stages`] gives them.
+pub type StageTimes = Vec<(String, f64)>;
 
 /// A frame submitted and not yet read.
 struct Queued {
@@ -37,6 +41,37 @@ impl Renderer {
         opts: &RenderOptions,
         mut each: impl FnMut(usize, Image, FrameStats) -> std::result::Result<(), E>,
     ) -> std::result::Result<(), E> {
+        self.stream(scene, cams, opts, None, |i, img, st, _| each(i, img, st))
+    }
+
+    /// [`Renderer::render_each`] with each frame's stage times from GPU timestamps,
+    /// still queued: frame i writes into `pools[i % 2]`, which the host reads after
+    /// waiting for frame i and before recording frame i + 2 into it, so timing adds no
+    /// wait (one submission per frame, one drain in all, as untimed). A frame that came
+    /// out incomplete hands over the times of its redo (rendered again, waited for).
+    /// Each pool needs room for a frame's marks (32 is plenty).
+    pub fn render_each_timed<E: From<Error>>(
+        &mut self,
+        scene: &SceneGpu,
+        cams: &[Camera],
+        opts: &RenderOptions,
+        pools: &mut [Timestamps; 2],
+        mut each: impl FnMut(usize, Image, FrameStats, StageTimes) -> std::result::Result<(), E>,
+    ) -> std::result::Result<(), E> {
+        self.stream(scene, cams, opts, Some(pools), |i, img, st, times| {
+            let times = times.expect("timed frames carry their stage times");
+            each(i, img, st, times)
+        })
+    }
+
+    fn stream<E: From<Error>>(
+        &mut self,
+        scene: &SceneGpu,
+        cams: &[Camera],
+        opts: &RenderOptions,
+        mut pools: Option<&mut [Timestamps; 2]>,
+        mut each: impl FnMut(usize, Image, FrameStats, Option<StageTimes>) -> std::result::Result<(), E>,
+    ) -> std::result::Result<(), E> {
         let ctx = self.ctx.clone();
         let mut queued: Option<Queued> = None;
         for (i, cam) in cams.iter().enumerate() {
@@ -46,8 +81,9 @@ impl Renderer {
             let (w, h) = plan.output_size();
             let bytes = u64::from(w) * u64::from(h) * CHANNELS as u64 * 4;
             self.image_slots[slot].ensure(&ctx, bytes)?;
+            let ts = pools.as_deref_mut().map(|p| &mut p[i % 2]);
             let (check, ticket) = ctx.submit(|cmd| {
-                self.record(cmd, scene, cam, opts, None)?;
+                self.record(cmd, scene, cam, opts, ts)?;
                 let check = self.record_checks(cmd, None)?;
                 let src = if plan.supersampled {
                     self.out_img.get()
@@ -65,18 +101,22 @@ impl Renderer {
                 stats: None,
             };
             if let Some(prev) = queued.take() {
-                self.finish(prev, Some(&mut next), scene, cams, opts, &mut each)?;
+                let ts = pools.as_deref_mut().map(|p| &mut p[prev.index % 2]);
+                self.finish(prev, Some(&mut next), scene, cams, opts, ts, &mut each)?;
             }
             queued = Some(next);
         }
         if let Some(last) = queued.take() {
-            self.finish(last, None, scene, cams, opts, &mut each)?;
+            let ts = pools.map(|p| &mut p[last.index % 2]);
+            self.finish(last, None, scene, cams, opts, ts, &mut each)?;
         }
         Ok(())
     }
 
     /// Waits for frame `q` and hands it over; renders it again if it came out
-    /// incomplete (first reading the stats of `behind`, queued after it).
+    /// incomplete (first reading the stats of `behind`, queued after it). `ts`: the
+    /// pool `q` was recorded with, read once `q` is done (or given to its redo).
+    #[allow(clippy::too_many_arguments)]
     fn finish<E: From<Error>>(
         &mut self,
         q: Queued,
@@ -84,7 +124,13 @@ impl Renderer {
         scene: &SceneGpu,
         cams: &[Camera],
         opts: &RenderOptions,
-        each: &mut impl FnMut(usize, Image, FrameStats) -> std::result::Result<(), E>,
+        mut ts: Option<&mut Timestamps>,
+        each: &mut impl FnMut(
+            usize,
+            Image,
+            FrameStats,
+            Option<StageTimes>,
+        ) -> std::result::Result<(), E>,
     ) -> std::result::Result<(), E> {
         self.ctx.wait(q.ticket)?;
         let stats = match q.stats {
@@ -99,7 +145,8 @@ impl Renderer {
                 .ok_or_else(|| Error::Gpu("raster.image-slot is not host-visible".into()))?;
             let n = w as usize * h as usize * CHANNELS;
             let raw: &[f32] = bytemuck::cast_slice(&bytes[..n * 4]);
-            return each(q.index, image_from_channels(raw, w, h), stats);
+            let times = ts.map(|t| t.stages()).transpose()?;
+            return each(q.index, image_from_channels(raw, w, h), stats, times);
         }
         if let Some(b) = behind {
             self.ctx.wait(b.ticket)?;
@@ -111,7 +158,8 @@ impl Renderer {
                 Error::Gpu(format!("frame incomplete but nothing to grow: {stats:?}")).into(),
             );
         }
-        let stats = self.render_to_device(scene, &cams[q.index], opts, None)?;
-        each(q.index, self.read_image()?, stats)
+        let stats = self.render_to_device(scene, &cams[q.index], opts, ts.as_deref_mut())?;
+        let times = ts.map(|t| t.stages()).transpose()?;
+        each(q.index, self.read_image()?, stats, times)
     }
 }

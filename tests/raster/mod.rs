@@ -12,6 +12,7 @@ use common::forward::{
 use common::reference::{self, RefPixel};
 use common::{camera_inside, camera_outside, context, finish, random_scene, scattered_scene, Rng};
 use svraster::data::Camera;
+use svraster::gpu::Timestamps;
 use svraster::raster::{FrameOutputs, Image, RenderOptions, Renderer};
 use svraster::scene::SceneGpu;
 use svraster::scene::{octpath_from_ijk, Scene};
@@ -171,6 +172,46 @@ fn queued_frames_match_frames_rendered_one_by_one() {
             assert!(c.throttle_waits < cams.len() as u64, "{c:?}");
         }
     }
+    // Timed and still queued (`bench render`): the same images, each frame's own stage
+    // times (the stages a waited, timestamped frame has), and no extra waits.
+    let mut waited = Timestamps::new(&ctx, 32).unwrap();
+    r.render_to_device(&gpu, &cams[0], &opts, Some(&mut waited))
+        .unwrap();
+    let labels: Vec<String> = waited.stages().unwrap().into_iter().map(|s| s.0).collect();
+    assert!(labels.len() >= 3, "{labels:?}");
+    let mut pools = [
+        Timestamps::new(&ctx, 32).unwrap(),
+        Timestamps::new(&ctx, 32).unwrap(),
+    ];
+    let c0 = ctx.queue_counters();
+    let mut timed = 0;
+    r.render_each_timed(
+        &gpu,
+        &cams,
+        &opts,
+        &mut pools,
+        |i, img, st, times| -> svraster::Result<()> {
+            assert!(st.complete(), "frame {i}: {st:?}");
+            assert!(img.rgb == want[i].rgb, "frame {i}: colours differ (timed)");
+            let names: Vec<&String> = times.iter().map(|s| &s.0).collect();
+            assert_eq!(names, labels.iter().collect::<Vec<_>>(), "frame {i}");
+            assert!(
+                times.iter().all(|s| s.1.is_finite() && s.1 >= 0.0),
+                "{times:?}"
+            );
+            assert!(
+                times.iter().map(|s| s.1).sum::<f64>() > 0.0,
+                "frame {i}: {times:?}"
+            );
+            timed += 1;
+            Ok(())
+        },
+    )
+    .unwrap();
+    let c = ctx.queue_counters() - c0;
+    assert_eq!(timed, cams.len());
+    assert_eq!(c.submits, cams.len() as u64, "timed: {c:?}");
+    assert_eq!(c.fence_waits, 1, "timed frames drain the queue once: {c:?}");
     finish(&ctx);
 }
 

@@ -166,6 +166,10 @@ fn demo_then_render_and_bench() {
     assert!(v["median_ms"].as_f64().unwrap() > 0.0);
     assert!(v["entries_median"].as_f64().unwrap() > 0.0);
     assert!(v["stages_median_ms"]["composite"].as_f64().is_some());
+    // 2 views × 1 run, timed while queued; and the same frames untimed.
+    assert_eq!(v["frames_timed"], 2, "{v}");
+    assert!(v["wall_timed_median_ms"].as_f64().unwrap() > 0.0, "{v}");
+    assert!(v["wall_median_ms"].as_f64().unwrap() > 0.0, "{v}");
 }
 
 #[test]
