@@ -41,6 +41,10 @@ pub struct SortArgs {
     /// (default: the device's, 256 on CPU devices, 4096 on GPUs).
     #[arg(long)]
     spin: Option<u32>,
+    /// Workgroups of the histogram kernel at most (0: one per 4 096 keys; default the
+    /// sort's, 1 024).
+    #[arg(long)]
+    hist_groups: Option<u32>,
     /// Seed of the random keys.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -78,6 +82,8 @@ struct SortReport {
     pass_kernel: &'static str,
     /// Look-back polls before the fallback recount.
     spin_limit: u32,
+    /// Histogram workgroups at most (0: one per 4 096 keys).
+    hist_groups: u32,
     passes: u32,
     /// Bit p set: pass p was skipped (its digit is the same in every key).
     skipped_passes: u32,
@@ -119,6 +125,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         runs,
         warmup,
         spin,
+        hist_groups,
         seed,
         json,
     } = *args;
@@ -198,6 +205,9 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     let mut sorter = RadixSort::with_pass(ctx, n, pass).context("creating the radix sort")?;
     sorter.set_skip_constant(!all_passes);
     sorter.set_spin_limit(spin);
+    if let Some(g) = hist_groups {
+        sorter.set_hist_groups(g);
+    }
     let scratch = SortScratch::new(ctx, n)?;
     let src_k = ctx.buffer_from("bench.keys.src", &keys)?;
     let src_v = ctx.buffer_from("bench.values.src", &values)?;
@@ -289,6 +299,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         vary: format!("{}..{}", vary.start, vary.end),
         pass_kernel: pass.name(),
         spin_limit: spin.unwrap_or_else(|| ctx.info().lookback_spin_limit()),
+        hist_groups: sorter.hist_groups(),
         passes,
         skipped_passes: skipped,
         runs,

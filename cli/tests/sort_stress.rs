@@ -71,6 +71,10 @@ fn repeated_sort_four_threads() {
         v["lookback"]["fallbacks_per_run"].as_f64().unwrap() > 0.0,
         "no fallback with --spin 0: {v}"
     );
+    // Seven histogram workgroups for 256 blocks of keys: each counts ~37 blocks while
+    // the others add to the same global counts.
+    let v = run_with("4", "direct", &["--hist-groups", "7"]);
+    assert_eq!(v["hist_groups"], 7, "{v}");
 }
 
 #[test]

@@ -14,6 +14,7 @@
 #define ST_TILE_CTR 8     // 8 tile-claim counters (one per sort pass)
 #define ST_ARGS_TILES 16  // VkDispatchIndirectCommand for tile kernels (x, y, z)
 #define ST_ARGS_CHUNKS 20 // VkDispatchIndirectCommand for the histogram kernel
+#define ST_HIST_MULT 23   // histogram: blocks of HIST_WG x HIST_KPT keys per workgroup (>= 1)
 #define ST_HIST 32        // 8 passes x 256 digit counts, then exclusive offsets
 // Written by sort/hist_scan.comp: a pass whose digit is the same for every key is
 // skipped (its dispatch has 0 workgroups) and swaps the direction of the later ones.

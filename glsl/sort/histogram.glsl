@@ -27,15 +27,19 @@ uint digit(KeyT key, uint p) {
 void main() {
     uint t = gl_LocalInvocationID.x;
     uint n = pc.state.v[ST_N];
-    uint base = linear_group_id() * (HIST_WG * HIST_KPT);
+    // Blocks of HIST_WG x HIST_KPT keys; a workgroup takes `mult` consecutive ones
+    // (sort/setup.comp: the grid is capped, so few workgroups add to the global counts).
+    uint mult = pc.state.v[ST_HIST_MULT];
+    uint base = linear_group_id() * (HIST_WG * HIST_KPT) * mult;
     if (base >= n) return; // uniform across the workgroup
     for (uint i = t; i < 8u * 256u; i += HIST_WG) s_hist[i] = 0u;
     barrier();
     // Two copies of the loop, so the device without aggregation (lavapipe, where a
     // branch around a vote inside the loop cost 14 % of this kernel) runs the plain one.
     if (pc.aggregate != 0u) {
+        for (uint m = 0u; m < mult; m++)
         for (uint r = 0u; r < HIST_KPT; r++) {
-            uint idx = base + r * HIST_WG + t;
+            uint idx = base + (m * HIST_KPT + r) * HIST_WG + t;
             if (idx < n) {
                 KeyT key = pc.keys.v[idx];
                 for (uint p = 0u; p < pc.passes; p++) {
@@ -53,8 +57,9 @@ void main() {
             }
         }
     } else {
+        for (uint m = 0u; m < mult; m++)
         for (uint r = 0u; r < HIST_KPT; r++) {
-            uint idx = base + r * HIST_WG + t;
+            uint idx = base + (m * HIST_KPT + r) * HIST_WG + t;
             if (idx < n) {
                 KeyT key = pc.keys.v[idx];
                 for (uint p = 0u; p < pc.passes; p++)

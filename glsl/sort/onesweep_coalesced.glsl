@@ -103,7 +103,9 @@ void main() {
         k[r] = valid ? keys_in.v[idx] : KeyT(0);
         v[r] = valid ? vals_in.v[idx] : 0u;
     }
-    for (uint r = 0u; r < KPT; r++) {
+    // Unrolled: k[], v[] and loc[] must stay in registers (an array indexed by a loop
+    // counter the compiler does not unroll goes to local memory on GPUs).
+    [[unroll]] for (uint r = 0u; r < KPT; r++) {
         bool valid = chunk + r * sgsize + lane < n;
         uint d = uint(k[r] >> pc.shift) & digit_mask;
         uvec3 rank = rank_in_subgroup(valid, d, pc.bits, pc.generic_rank == 0u);

@@ -16,6 +16,8 @@ layout(push_constant) uniform Push {
     uint chunk_size;   // elements per workgroup of the histogram kernel (0: none)
     uint max_groups_x; // maxComputeWorkGroupCount[0]
     uint hist_words;   // histogram words to zero (passes * 256)
+    uint max_chunk_groups; // histogram workgroups at most (0: one per chunk_size keys)
+    uint pad;
 } pc;
 
 uvec3 grid(uint groups) {
@@ -45,7 +47,14 @@ void main() {
         pc.state.v[ST_ARGS_TILES + 0] = a.x;
         pc.state.v[ST_ARGS_TILES + 1] = a.y;
         pc.state.v[ST_ARGS_TILES + 2] = a.z;
-        uvec3 b = pc.chunk_size > 0u ? grid((n + pc.chunk_size - 1u) / pc.chunk_size) : uvec3(0u, 1u, 1u);
+        // Each histogram workgroup ends with one global add per digit and pass, so
+        // beyond max_chunk_groups workgroups each takes several chunks instead.
+        uint chunks = pc.chunk_size > 0u ? (n + pc.chunk_size - 1u) / pc.chunk_size : 0u;
+        uint mult = 1u;
+        if (pc.max_chunk_groups > 0u && chunks > pc.max_chunk_groups)
+            mult = (chunks + pc.max_chunk_groups - 1u) / pc.max_chunk_groups;
+        pc.state.v[ST_HIST_MULT] = mult;
+        uvec3 b = pc.chunk_size > 0u ? grid((chunks + mult - 1u) / mult) : uvec3(0u, 1u, 1u);
         pc.state.v[ST_ARGS_CHUNKS + 0] = b.x;
         pc.state.v[ST_ARGS_CHUNKS + 1] = b.y;
         pc.state.v[ST_ARGS_CHUNKS + 2] = b.z;

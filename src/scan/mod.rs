@@ -79,7 +79,8 @@ impl PrefixScan {
             }
         }
         let ctx = &self.ctx;
-        self.run.record_setup(ctx, cmd, count, SCAN_TILE, 0, 0);
+        self.run
+            .record_setup(ctx, cmd, count, SCAN_TILE, crate::sort::HistGrid::default());
         let push = ScanPush {
             src: input.address(),
             dst: output.address(),

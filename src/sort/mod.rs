@@ -33,6 +33,10 @@ use pass::MIN_TILE;
 pub const SORT_TILE: u32 = glsl::WG * glsl::KPT;
 /// Keys per histogram workgroup (HIST_WG × HIST_KPT in glsl/sort/histogram.glsl).
 const HIST_CHUNK: u32 = glsl::HIST_WG * glsl::HIST_KPT;
+/// Default cap on the histogram's workgroups ([`RadixSort::set_hist_groups`]): the
+/// grid of 2^22 keys (4 M, lavapipe's benchmark size) is unchanged, larger sorts give
+/// each workgroup several blocks.
+const HIST_GROUPS: u32 = 1024;
 // Words of the state buffer (ST_* in pass_state.glsl).
 /// Words of the state buffer (ST_WORDS in pass_state.glsl).
 pub(crate) const STATE_WORDS: usize = glsl::ST_WORDS as usize;
@@ -60,8 +64,21 @@ pub(crate) struct SetupPush {
     pub chunk_size: u32,
     pub max_groups_x: u32,
     pub hist_words: u32,
+    pub max_chunk_groups: u32,
+    pub pad: u32,
 }
 push_constants!(SORT_SETUP, SetupPush);
+
+/// The histogram grid `sort/setup.comp` sizes (all zero for the scan, which has none).
+#[derive(Clone, Copy, Default)]
+pub(crate) struct HistGrid {
+    /// Keys per block of a histogram workgroup.
+    pub chunk: u32,
+    /// Workgroups at most (0: one per block); above it each takes several blocks.
+    pub max_groups: u32,
+    /// Histogram words to zero (passes × 256).
+    pub words: u32,
+}
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
@@ -202,8 +219,7 @@ impl RunState {
         cmd: vk::CommandBuffer,
         count: Count,
         tile: u32,
-        chunk: u32,
-        hist_words: u32,
+        hist: HistGrid,
     ) {
         let (count_addr, n) = match count {
             Count::Host(n) => (0, n),
@@ -215,9 +231,11 @@ impl RunState {
             n,
             capacity: self.capacity,
             tile_size: tile,
-            chunk_size: chunk,
+            chunk_size: hist.chunk,
             max_groups_x: ctx.info().max_compute_work_group_count[0].min(65535),
-            hist_words,
+            hist_words: hist.words,
+            max_chunk_groups: hist.max_groups,
+            pad: 0,
         };
         self.setup.dispatch(cmd, &push, [1, 1, 1]);
         recorder::barrier(ctx, cmd);
@@ -269,6 +287,7 @@ pub struct RadixSort {
     generic_rank: bool,
     skip_constant: bool,
     spin_limit: Option<u32>,
+    hist_groups: u32,
 }
 
 impl RadixSort {
@@ -316,7 +335,21 @@ impl RadixSort {
             generic_rank: false,
             skip_constant: true,
             spin_limit: None,
+            hist_groups: HIST_GROUPS,
         })
+    }
+
+    /// Workgroups of the histogram kernel at most (0: one per 4 096 keys). Each ends
+    /// with one global add per digit of every pass (2 048 for 64-bit keys), so at
+    /// 2^24 keys one workgroup per 4 096 keys would make 8.4 M contended adds; above
+    /// the cap each workgroup takes several blocks. `bench sort --hist-groups` sweeps it.
+    pub fn set_hist_groups(&mut self, groups: u32) {
+        self.hist_groups = groups;
+    }
+
+    /// The histogram's workgroup cap ([`RadixSort::set_hist_groups`]).
+    pub fn hist_groups(&self) -> u32 {
+        self.hist_groups
     }
 
     /// Look-back polls of a predecessor tile before its digits are recounted (default:
@@ -412,8 +445,12 @@ impl RadixSort {
         }
         let ctx = &self.ctx;
         let tile = self.kind.tile();
-        self.run
-            .record_setup(ctx, cmd, count, tile, HIST_CHUNK, passes * 256);
+        let hist = HistGrid {
+            chunk: HIST_CHUNK,
+            max_groups: self.hist_groups,
+            words: passes * 256,
+        };
+        self.run.record_setup(ctx, cmd, count, tile, hist);
         if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "sort.setup");
         }
