@@ -208,7 +208,8 @@ fn sort_low_byte_only() {
 /// Every pass kernel this device runs (all three on a GPU; on lavapipe, whose 8-lane
 /// subgroups `c256` does not support, `direct` and `c128`, which is `c256`'s body with
 /// 128 invocations), with the shuffle and the ballot ranking, u64 and u32 keys, the
-/// look-back's recount fallback forced (spin limit 0) and not, against the reference.
+/// look-back's recount fallback forced (spin limit 0) and not, look-back windows of 1, 3 and 8
+/// words (coalesced passes), against the reference.
 #[test]
 fn sort_every_pass_kernel() {
     let ctx = common::context();
@@ -224,9 +225,26 @@ fn sort_every_pass_kernel() {
         }
         let mut h = Harness::with_pass(&ctx, 1 << 20, pass);
         assert_eq!(h.sort.pass(), pass);
-        for (generic, spin) in [(false, None), (true, None), (false, Some(0))] {
+        // Look-back windows (coalesced passes; the direct pass reads one word at a
+        // time): the device's, and 8 words with and without the recount fallback.
+        let windows: &[(bool, Option<u32>, Option<u32>)] = match pass {
+            SortPass::Direct => &[
+                (false, None, None),
+                (true, None, None),
+                (false, Some(0), None),
+            ],
+            _ => &[
+                (false, None, None),
+                (true, None, None),
+                (false, Some(0), None),
+                (false, None, Some(8)),
+                (true, Some(0), Some(3)),
+            ],
+        };
+        for &(generic, spin, window) in windows {
             h.sort.set_generic_rank(generic);
             h.sort.set_spin_limit(spin);
+            h.sort.set_lookback_window(window).unwrap();
             for dist in [
                 Dist::Uniform,
                 Dist::ThreeValues,
@@ -239,7 +257,7 @@ fn sort_every_pass_kernel() {
                     let vals: Vec<u32> = (0..n as u32).collect();
                     let what = |bits: &str| {
                         format!(
-                            "pass {} generic {generic} spin {spin:?} {dist:?} n={n} {bits}",
+                            "pass {} generic {generic} spin {spin:?} window {window:?} {dist:?} n={n} {bits}",
                             pass.name()
                         )
                     };

@@ -45,6 +45,10 @@ pub struct SortArgs {
     /// sort's, 1 024).
     #[arg(long)]
     hist_groups: Option<u32>,
+    /// Look-back status words each digit of a coalesced pass (c128, c256) reads at
+    /// once, 1 to 8 (default the device's: 1 on CPUs, 4 on GPUs).
+    #[arg(long)]
+    window: Option<u32>,
     /// Seed of the random keys.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -84,6 +88,8 @@ struct SortReport {
     spin_limit: u32,
     /// Histogram workgroups at most (0: one per 4 096 keys).
     hist_groups: u32,
+    /// Look-back words a digit reads at once (coalesced passes).
+    lookback_window: u32,
     passes: u32,
     /// Bit p set: pass p was skipped (its digit is the same in every key).
     skipped_passes: u32,
@@ -126,6 +132,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         warmup,
         spin,
         hist_groups,
+        window,
         seed,
         json,
     } = *args;
@@ -208,6 +215,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     if let Some(g) = hist_groups {
         sorter.set_hist_groups(g);
     }
+    sorter.set_lookback_window(window)?;
     let scratch = SortScratch::new(ctx, n)?;
     let src_k = ctx.buffer_from("bench.keys.src", &keys)?;
     let src_v = ctx.buffer_from("bench.values.src", &values)?;
@@ -300,6 +308,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         pass_kernel: pass.name(),
         spin_limit: spin.unwrap_or_else(|| ctx.info().lookback_spin_limit()),
         hist_groups: sorter.hist_groups(),
+        lookback_window: sorter.lookback_window(),
         passes,
         skipped_passes: skipped,
         runs,

@@ -81,4 +81,12 @@ fn repeated_sort_four_threads() {
 fn repeated_sort_eight_threads() {
     run("8", "direct");
     run("8", "c128");
+    // The coalesced pass reading 8 look-back words at once: walks of several words
+    // (steps > 1 per digit and tile) taken from one window.
+    let v = run_with("8", "c128", &["--window", "8"]);
+    assert_eq!(v["lookback_window"], 8, "{v}");
+    assert!(
+        v["lookback"]["steps_per_digit_tile"].as_f64().unwrap() > 1.0,
+        "{v}"
+    );
 }

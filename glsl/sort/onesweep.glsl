@@ -48,7 +48,7 @@ layout(push_constant) uniform Push {
     uint pass_index;  // 0..7
     uint spin_limit;  // polls of a predecessor before the fallback
     uint generic_rank; // 1: rank with ballots on any subgroup size (tests)
-    uint pad;
+    uint lb_window;   // the coalesced passes' look-back window (unused here: one word at a time)
 } pc;
 
 shared uint s_tile;

@@ -39,6 +39,7 @@
 #define ROWS_WORDS (MAX_SG * RADIX)
 #define STAGE_WORDS (2 * TILE) // u64 keys as two words, or u32 keys then values
 #define MEM_WORDS (ROWS_WORDS > STAGE_WORDS ? ROWS_WORDS : STAGE_WORDS)
+#define LB_WINDOW 8           // most look-back words a digit reads at once
 layout(local_size_x = WG) in;
 
 layout(push_constant) uniform Push {
@@ -53,7 +54,7 @@ layout(push_constant) uniform Push {
     uint pass_index;  // 0..7
     uint spin_limit;  // polls of a predecessor before the fallback
     uint generic_rank; // 1: rank with ballots on any subgroup size (tests)
-    uint pad;
+    uint lb_window;   // look-back: predecessors' words read at once per digit (1..LB_WINDOW)
 } pc;
 
 shared uint s_tile;
@@ -199,9 +200,47 @@ void main() {
             [[unroll]] for (uint q = 0u; q < DPT; q++) {
                 uint d = t + q * WG;
                 while (!done[q]) {
+                    // Windowed: the words of up to lb_window predecessors are loaded
+                    // at once (independent loads: one memory latency, not one per
+                    // tile walked), then taken nearest first up to the first
+                    // inclusive prefix or the first word not yet published.
+                    uint64_t ws[LB_WINDOW];
+                    [[unroll]] for (uint i = 0u; i < LB_WINDOW; i++) {
+                        ws[i] = (i < pc.lb_window && i <= jj[q])
+                              ? lb_load(pc.status, (jj[q] - i) * RADIX + d) : uint64_t(0);
+                    }
+                    uint jj0 = jj[q];
+                    bool open = true; // still taking words of this window
+                    uint taken = 0u;
+                    [[unroll]] for (uint i = 0u; i < LB_WINDOW; i++) {
+                        if (open && i < pc.lb_window && i <= jj0) {
+                            uint fi = lb_flag(ws[i], tag);
+                            if (fi == 0u) {
+                                open = false;
+                            } else {
+                                lb_steps++;
+                                taken++;
+                                before[q] += lb_value(ws[i]);
+                                if (fi == LB_INCLUSIVE) {
+                                    done[q] = true;
+                                    open = false;
+                                } else if (jj[q] == 0u) {
+                                    // Tile 0 publishes only inclusive words: a
+                                    // corrupted state.
+                                    atomicOr(pc.state.v[ST_ERRORS], ERR_LOOKBACK);
+                                    done[q] = true;
+                                    open = false;
+                                } else {
+                                    jj[q]--;
+                                }
+                            }
+                        }
+                    }
+                    if (done[q] || taken > 0u) continue; // next window from jj[q]
+                    // The nearest word is not published yet: poll it.
                     uint idx = jj[q] * RADIX + d;
-                    uint64_t w = lb_load(pc.status, idx);
-                    uint f = lb_flag(w, tag);
+                    uint64_t w = ws[0];
+                    uint f = 0u;
                     uint s = 0u;
                     for (; f == 0u && s < pc.spin_limit; s++) {
                         w = lb_load(pc.status, idx);

@@ -65,6 +65,18 @@ impl DeviceInfo {
         }
     }
 
+    /// Look-back status words each digit of the coalesced sort pass reads at once
+    /// ([`crate::sort::RadixSort::set_lookback_window`]): on a GPU a walk over
+    /// predecessors costs one memory latency per window instead of one per tile; a CPU
+    /// device reads them from its caches, one at a time.
+    pub fn lookback_window(&self) -> u32 {
+        if self.is_cpu {
+            1
+        } else {
+            4
+        }
+    }
+
     /// Entries per composite dispatch of the forward: under the loop limit
     /// ([`Self::loop_limit`]: 65 535 trips per invocation) far below it, ≤ ~7 trips per
     /// entry even if nothing unrolls; unbounded (2²²) elsewhere.

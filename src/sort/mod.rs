@@ -128,7 +128,9 @@ struct PassPush {
     pass_index: u32,
     spin_limit: u32,
     generic_rank: u32,
-    pad: u32,
+    /// Coalesced passes: look-back words read at once per digit (the direct pass
+    /// ignores it).
+    lb_window: u32,
 }
 push_constants!(SORT_ONESWEEP_VARIANTS, PassPush);
 push_constants!(SORT_ONESWEEP_C128_VARIANTS, PassPush);
@@ -288,12 +290,15 @@ pub struct RadixSort {
     skip_constant: bool,
     spin_limit: Option<u32>,
     hist_groups: u32,
+    lookback_window: Option<u32>,
 }
 
 impl RadixSort {
     /// Largest capacity: look-back values and indices are 32-bit, and a count rounded
     /// up to whole tiles of any pass (≤ 3 840 keys) must fit too.
     pub const MAX_CAPACITY: u32 = u32::MAX - 4096;
+    /// Largest look-back window (LB_WINDOW in glsl/sort/onesweep_coalesced.glsl).
+    pub const MAX_LOOKBACK_WINDOW: u32 = glsl::LB_WINDOW;
 
     /// The sort with the device's pass kernel ([`SortPass::for_device`]).
     pub fn new(ctx: &Context, capacity: u32) -> Result<Self> {
@@ -336,6 +341,7 @@ impl RadixSort {
             skip_constant: true,
             spin_limit: None,
             hist_groups: HIST_GROUPS,
+            lookback_window: None,
         })
     }
 
@@ -345,6 +351,29 @@ impl RadixSort {
     /// the cap each workgroup takes several blocks. `bench sort --hist-groups` sweeps it.
     pub fn set_hist_groups(&mut self, groups: u32) {
         self.hist_groups = groups;
+    }
+
+    /// Look-back status words each digit of a coalesced pass reads at once, 1 to
+    /// [`RadixSort::MAX_LOOKBACK_WINDOW`] (default:
+    /// [`DeviceInfo::lookback_window`](crate::gpu::DeviceInfo::lookback_window)); the
+    /// direct pass reads one. `bench sort --window` sweeps it.
+    pub fn set_lookback_window(&mut self, words: Option<u32>) -> Result<()> {
+        if let Some(w) = words {
+            if !(1..=Self::MAX_LOOKBACK_WINDOW).contains(&w) {
+                return Err(Error::Invalid(format!(
+                    "look-back window {w}: must be 1 to {}",
+                    Self::MAX_LOOKBACK_WINDOW
+                )));
+            }
+        }
+        self.lookback_window = words;
+        Ok(())
+    }
+
+    /// The look-back window the coalesced passes use.
+    pub fn lookback_window(&self) -> u32 {
+        self.lookback_window
+            .unwrap_or_else(|| self.ctx.info().lookback_window())
     }
 
     /// The histogram's workgroup cap ([`RadixSort::set_hist_groups`]).
@@ -489,6 +518,7 @@ impl RadixSort {
         let spin = self
             .spin_limit
             .unwrap_or_else(|| ctx.info().lookback_spin_limit());
+        let window = self.lookback_window();
         for p in 0..passes {
             let shift = bits.start + 8 * p;
             let (ki, vi, ko, vo) = if p % 2 == 0 {
@@ -508,7 +538,7 @@ impl RadixSort {
                 pass_index: p,
                 spin_limit: spin,
                 generic_rank: self.generic_rank as u32,
-                pad: 0,
+                lb_window: window,
             };
             pass.dispatch_indirect(
                 cmd,
