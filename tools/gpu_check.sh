@@ -73,7 +73,8 @@ if [ -n "${SVR:-}" ]; then
 fi
 stamp bench
 for a in "--pass auto" "--pass direct" "--bits 0..40" "--spin 64" "--spin 1000000" "--hist-groups 0" "--hist-groups 256" "--window 1" "--window 8"; do
-  timeout 40 "$B" bench sort --n 16777216 --runs 5 --warmup 2 $a --json >> $X/sort.jsonl 2>>$X/sort.err
+  nb=--no-baseline; [ "$a" = "--pass auto" ] && nb=
+  timeout 40 "$B" bench sort --n 16777216 --runs 5 --warmup 2 $a $nb --json >> $X/sort.jsonl 2>>$X/sort.err
 done
 for n in 1048576 4194304; do
   timeout 40 "$B" bench sort --n $n --runs 5 --warmup 2 --json >> $X/sort.jsonl 2>>$X/sort.err

@@ -49,6 +49,10 @@ pub struct SortArgs {
     /// once, 1 to 8 (default the device's: 1 on CPUs, 4 on GPUs).
     #[arg(long)]
     window: Option<u32>,
+    /// Skip the CPU baseline (`sort_unstable` timed W + R times; sweeps of large sorts
+    /// on a GPU machine). Every run is still verified.
+    #[arg(long)]
+    no_baseline: bool,
     /// Seed of the random keys.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -109,9 +113,10 @@ struct SortReport {
     lookback: LookbackReport,
     verified: bool,
     failed_runs: u32,
-    cpu_median_ms: f64,
-    cpu_mkeys_per_s: f64,
-    speedup_vs_cpu: f64,
+    /// The CPU baseline (null with --no-baseline).
+    cpu_median_ms: Option<f64>,
+    cpu_mkeys_per_s: Option<f64>,
+    speedup_vs_cpu: Option<f64>,
 }
 
 #[derive(serde::Serialize)]
@@ -133,6 +138,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         spin,
         hist_groups,
         window,
+        no_baseline,
         seed,
         json,
     } = *args;
@@ -194,7 +200,8 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     // CPU baseline in this process: sort_unstable on the same pairs, same key bits.
     let mut cpu_ms = Vec::new();
     let pairs: Vec<(u64, u32)> = keys.iter().copied().zip(values.iter().copied()).collect();
-    for i in 0..warmup + runs {
+    let cpu_runs = if no_baseline { 0 } else { warmup + runs };
+    for i in 0..cpu_runs {
         let mut p = pairs.clone();
         let t = Instant::now();
         p.sort_unstable_by_key(|&(k, _)| (k >> lo) & mask);
@@ -267,7 +274,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         }
     }
     let med = median(&gpu_ms);
-    let cpu = median(&cpu_ms);
+    let cpu = (!cpu_ms.is_empty()).then(|| median(&cpu_ms));
     let skipped = sorter.last_skipped()?;
     let stages_median_ms: BTreeMap<String, f64> =
         stages.iter().map(|(k, v)| (k.clone(), median(v))).collect();
@@ -322,8 +329,8 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         verified: failed == 0,
         failed_runs: failed,
         cpu_median_ms: cpu,
-        cpu_mkeys_per_s: n as f64 / cpu / 1e3,
-        speedup_vs_cpu: cpu / med,
+        cpu_mkeys_per_s: cpu.map(|c| n as f64 / c / 1e3),
+        speedup_vs_cpu: cpu.map(|c| c / med),
     };
     if json {
         println!("{}", serde_json::to_string(&report)?);
@@ -354,11 +361,14 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
              tile, {:.0} fallback rounds per run",
             lb.steps_per_digit_tile, lb.waits_per_tile, lb.fallbacks_per_run
         );
-        println!(
-            "  CPU   median {:9.2} ms  {:8.2} Mkeys/s  (Rust sort_unstable, 1 thread)",
-            cpu, report.cpu_mkeys_per_s
-        );
-        println!("  GPU/CPU speed ratio {:.3}", report.speedup_vs_cpu);
+        if let (Some(cpu), Some(rate), Some(ratio)) =
+            (cpu, report.cpu_mkeys_per_s, report.speedup_vs_cpu)
+        {
+            println!(
+                "  CPU   median {cpu:9.2} ms  {rate:8.2} Mkeys/s  (Rust sort_unstable, 1 thread)"
+            );
+            println!("  GPU/CPU speed ratio {ratio:.3}");
+        }
         println!(
             "  verified: {} ({} of {} runs wrong)",
             if failed == 0 { "yes" } else { "NO" },
