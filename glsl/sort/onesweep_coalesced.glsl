@@ -188,10 +188,12 @@ void main() {
     uint before[DPT];
     uint jj[DPT];
     bool done[DPT];
+    bool published[DPT]; // this digit's inclusive prefix is out (as soon as it is known)
     [[unroll]] for (uint q = 0u; q < DPT; q++) {
         before[q] = 0u;
         jj[q] = tile - 1u;
         done[q] = tile == 0u;
+        published[q] = tile == 0u;
     }
     if (tile > 0u) {
         uint lb_steps = 0u, lb_waits = 0u;
@@ -263,6 +265,13 @@ void main() {
                         jj[q]--;
                     }
                 }
+                // Publish the digit's inclusive prefix at once, not after the
+                // workgroup's slowest digit: successors' walks stop here sooner.
+                if (done[q] && !published[q]) {
+                    lb_store(pc.status, status_base + d,
+                             lb_pack(tag, LB_INCLUSIVE, before[q] + count[q]));
+                    published[q] = true;
+                }
             }
             if (t == 0u) s_jmax = 0u;
             if (lb_workgroup_or(stalled ? 1u : 0u) == 0u) break;
@@ -296,10 +305,6 @@ void main() {
         if (t == 0u) {
             atomicAdd(pc.state.v[ST_LB_STEPS], s_lb[0]);
             atomicAdd(pc.state.v[ST_LB_WAITS], s_lb[1]);
-        }
-        [[unroll]] for (uint q = 0u; q < DPT; q++) {
-            lb_store(pc.status, status_base + t + q * WG,
-                     lb_pack(tag, LB_INCLUSIVE, before[q] + count[q]));
         }
     }
     uint hist_base = ST_HIST + pc.pass_index * RADIX;
