@@ -241,29 +241,17 @@ void main() {
                     if (done[q] || taken > 0u) continue; // next window from jj[q]
                     // The nearest word is not published yet: poll it.
                     uint idx = jj[q] * RADIX + d;
-                    uint64_t w = ws[0];
                     uint f = 0u;
                     uint s = 0u;
                     for (; f == 0u && s < pc.spin_limit; s++) {
-                        w = lb_load(pc.status, idx);
-                        f = lb_flag(w, tag);
+                        f = lb_flag(lb_load(pc.status, idx), tag);
                     }
                     lb_waits += s;
                     if (f == 0u) {
                         stalled = true;
                         break;
                     }
-                    lb_steps++;
-                    before[q] += lb_value(w);
-                    if (f == LB_INCLUSIVE) {
-                        done[q] = true;
-                    } else if (jj[q] == 0u) {
-                        // Tile 0 publishes only inclusive words: a corrupted state.
-                        atomicOr(pc.state.v[ST_ERRORS], ERR_LOOKBACK);
-                        done[q] = true;
-                    } else {
-                        jj[q]--;
-                    }
+                    // Published now: the next window starts with it.
                 }
                 // Publish the digit's inclusive prefix at once, not after the
                 // workgroup's slowest digit: successors' walks stop here sooner.
