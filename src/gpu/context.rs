@@ -61,6 +61,11 @@ pub(crate) struct Inner {
     owned: bool,
     pub info: DeviceInfo,
     pub pipeline_cache: vk::PipelineCache,
+    /// Every kernel's pipeline and layout, made once per context on first use and kept
+    /// until the context drops (`Kernel::new` takes them from here; keyed by the
+    /// kernel's name and SPIR-V). A renderer, backward or sort made again on the same
+    /// context costs no pipeline creation (on lavapipe each one is a shader compile).
+    pub(crate) pipelines: Mutex<super::kernel::PipelineRegistry>,
     /// Guards `queue` (Vulkan requires external synchronisation) and the command pool.
     pub submit: Mutex<vk::CommandPool>,
     pub conditional: Option<ash::ext::conditional_rendering::Device>,
@@ -268,6 +273,7 @@ impl Context {
                 owned,
                 info,
                 pipeline_cache,
+                pipelines: Mutex::default(),
                 submit: Mutex::new(pool),
                 conditional,
                 queue_state: Default::default(),
@@ -277,6 +283,12 @@ impl Context {
 
     pub fn info(&self) -> &DeviceInfo {
         &self.inner.info
+    }
+
+    /// Kernels whose pipelines this context has made so far (each once: renderers,
+    /// backwards and sorts made again on the context take them from its registry).
+    pub fn pipelines_made(&self) -> usize {
+        self.inner.pipelines.lock().map_or(0, |p| p.len())
     }
 
     /// The largest device-local heap as VK_EXT_memory_budget reports it now: its size,
@@ -375,6 +387,9 @@ impl Drop for Inner {
                 .free_parked(&self.device, &self.allocator, true);
             if let Ok(pool) = self.submit.lock() {
                 self.device.destroy_command_pool(*pool, None);
+            }
+            if let Ok(mut p) = self.pipelines.lock() {
+                p.destroy(&self.device);
             }
             if self.pipeline_cache != vk::PipelineCache::null() {
                 self.device

@@ -3,6 +3,7 @@
 //! that block is checked against the size reflected from the SPIR-V at compile time
 //! (see [`push_constants!`](crate::push_constants)).
 
+use std::collections::HashMap;
 use std::sync::Arc;
 
 use ash::vk;
@@ -42,7 +43,94 @@ pub fn kernel_grid<const A: usize, const B: usize>(
     Ok(<[[Kernel; B]; A]>::try_from(rows).unwrap_or_else(|_| unreachable!("A rows")))
 }
 
-/// A compute pipeline and its layout.
+/// The pipelines a context has made, by kernel (see `Inner::pipelines`).
+#[derive(Default)]
+pub(crate) struct PipelineRegistry {
+    made: HashMap<(&'static str, usize), (vk::Pipeline, vk::PipelineLayout)>,
+}
+
+impl PipelineRegistry {
+    pub(crate) fn len(&self) -> usize {
+        self.made.len()
+    }
+
+    /// Destroys every pipeline and layout (the context is dropping: no kernel is left).
+    pub(crate) fn destroy(&mut self, dev: &ash::Device) {
+        for (_, (pipeline, layout)) in self.made.drain() {
+            unsafe {
+                dev.destroy_pipeline(pipeline, None);
+                dev.destroy_pipeline_layout(layout, None);
+            }
+        }
+    }
+}
+
+/// Makes and names `source`'s pipeline and layout on `ctx`.
+fn make_pipeline(
+    ctx: &Context,
+    source: &'static KernelSource,
+) -> Result<(vk::Pipeline, vk::PipelineLayout)> {
+    let dev = ctx.device();
+    let code = ash::util::read_spv(&mut std::io::Cursor::new(source.spirv))
+        .map_err(|e| Error::Gpu(format!("kernel {}: bad SPIR-V: {e}", source.name)))?;
+    let module = unsafe {
+        dev.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None)
+    }
+    .vk("vkCreateShaderModule")?;
+    let ranges = [vk::PushConstantRange {
+        stage_flags: vk::ShaderStageFlags::COMPUTE,
+        offset: 0,
+        size: source.push_size,
+    }];
+    let lci = if source.push_size > 0 {
+        vk::PipelineLayoutCreateInfo::default().push_constant_ranges(&ranges)
+    } else {
+        vk::PipelineLayoutCreateInfo::default()
+    };
+    let layout = match unsafe { dev.create_pipeline_layout(&lci, None) } {
+        Ok(l) => l,
+        Err(e) => {
+            unsafe { dev.destroy_shader_module(module, None) };
+            return Err(Error::Vulkan {
+                call: "vkCreatePipelineLayout",
+                result: e,
+            });
+        }
+    };
+    let full = ctx.info().full_subgroups
+        && source.local_size[0] * source.local_size[1] * source.local_size[2] >= 128;
+    let flags = if full {
+        vk::PipelineShaderStageCreateFlags::REQUIRE_FULL_SUBGROUPS
+    } else {
+        vk::PipelineShaderStageCreateFlags::empty()
+    };
+    let stage = vk::PipelineShaderStageCreateInfo::default()
+        .stage(vk::ShaderStageFlags::COMPUTE)
+        .flags(flags)
+        .module(module)
+        .name(c"main");
+    let ci = [vk::ComputePipelineCreateInfo::default()
+        .stage(stage)
+        .layout(layout)];
+    let res = unsafe { dev.create_compute_pipelines(ctx.inner.pipeline_cache, &ci, None) };
+    unsafe { dev.destroy_shader_module(module, None) };
+    let pipeline = match res {
+        Ok(p) => p[0],
+        Err((_, e)) => {
+            unsafe { dev.destroy_pipeline_layout(layout, None) };
+            return Err(Error::Vulkan {
+                call: "vkCreateComputePipelines",
+                result: e,
+            });
+        }
+    };
+    ctx.set_name(pipeline, source.name);
+    Ok((pipeline, layout))
+}
+
+/// A compute pipeline and its layout: a handle to the context's pipeline for the
+/// kernel, made on the context's first use of it (so making a renderer, backward or
+/// sort again on a context costs no shader compilation).
 pub struct Kernel {
     inner: Arc<Inner>,
     pub(crate) source: &'static KernelSource,
@@ -53,62 +141,25 @@ pub struct Kernel {
 }
 
 impl Kernel {
+    /// The kernel's pipeline on `ctx`: made on the first call for `source` on this
+    /// context, taken from the context's registry afterwards (keyed by the kernel's
+    /// name and SPIR-V).
     pub fn new(ctx: &Context, source: &'static KernelSource) -> Result<Self> {
-        let dev = ctx.device();
-        let code = ash::util::read_spv(&mut std::io::Cursor::new(source.spirv))
-            .map_err(|e| Error::Gpu(format!("kernel {}: bad SPIR-V: {e}", source.name)))?;
-        let module = unsafe {
-            dev.create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None)
-        }
-        .vk("vkCreateShaderModule")?;
-        let ranges = [vk::PushConstantRange {
-            stage_flags: vk::ShaderStageFlags::COMPUTE,
-            offset: 0,
-            size: source.push_size,
-        }];
-        let lci = if source.push_size > 0 {
-            vk::PipelineLayoutCreateInfo::default().push_constant_ranges(&ranges)
-        } else {
-            vk::PipelineLayoutCreateInfo::default()
-        };
-        let layout = match unsafe { dev.create_pipeline_layout(&lci, None) } {
-            Ok(l) => l,
-            Err(e) => {
-                unsafe { dev.destroy_shader_module(module, None) };
-                return Err(Error::Vulkan {
-                    call: "vkCreatePipelineLayout",
-                    result: e,
-                });
+        let key = (source.name, source.spirv.as_ptr() as usize);
+        let mut reg = ctx
+            .inner
+            .pipelines
+            .lock()
+            .map_err(|_| Error::Gpu("the pipeline registry's lock is poisoned".into()))?;
+        let (pipeline, layout) = match reg.made.get(&key) {
+            Some(&made) => made,
+            None => {
+                let made = make_pipeline(ctx, source)?;
+                reg.made.insert(key, made);
+                made
             }
         };
-        let full = ctx.info().full_subgroups
-            && source.local_size[0] * source.local_size[1] * source.local_size[2] >= 128;
-        let flags = if full {
-            vk::PipelineShaderStageCreateFlags::REQUIRE_FULL_SUBGROUPS
-        } else {
-            vk::PipelineShaderStageCreateFlags::empty()
-        };
-        let stage = vk::PipelineShaderStageCreateInfo::default()
-            .stage(vk::ShaderStageFlags::COMPUTE)
-            .flags(flags)
-            .module(module)
-            .name(c"main");
-        let ci = [vk::ComputePipelineCreateInfo::default()
-            .stage(stage)
-            .layout(layout)];
-        let res = unsafe { dev.create_compute_pipelines(ctx.inner.pipeline_cache, &ci, None) };
-        unsafe { dev.destroy_shader_module(module, None) };
-        let pipeline = match res {
-            Ok(p) => p[0],
-            Err((_, e)) => {
-                unsafe { dev.destroy_pipeline_layout(layout, None) };
-                return Err(Error::Vulkan {
-                    call: "vkCreateComputePipelines",
-                    result: e,
-                });
-            }
-        };
-        ctx.set_name(pipeline, source.name);
+        drop(reg);
         Ok(Kernel {
             inner: ctx.inner.clone(),
             source,
@@ -179,15 +230,6 @@ impl Kernel {
     ) {
         self.bind(cmd, push);
         unsafe { self.inner.device.cmd_dispatch_indirect(cmd, args, offset) };
-    }
-}
-
-impl Drop for Kernel {
-    fn drop(&mut self) {
-        unsafe {
-            self.inner.device.destroy_pipeline(self.pipeline, None);
-            self.inner.device.destroy_pipeline_layout(self.layout, None);
-        }
     }
 }
 

@@ -218,3 +218,57 @@ fn queued_frames_match_frames_rendered_one_by_one() {
 mod against_reference;
 mod frame_mean;
 mod image_edges;
+
+/// Pipelines are made once per context: a second renderer, backward or sort on the
+/// same context makes none (on lavapipe each one is a shader compile; the suite's
+/// gradient tests make hundreds of renderers), and renders the same image.
+#[test]
+fn renderers_made_again_reuse_the_context_s_pipelines() {
+    use svraster::sort::RadixSort;
+    use svraster::train::backward::{Backward, Reduction};
+    let ctx = context();
+    assert_eq!(
+        ctx.pipelines_made(),
+        0,
+        "a fresh context has made no pipeline"
+    );
+    let mut rng = Rng(4242);
+    let scene = random_scene(&mut rng, 6, 1);
+    let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+    let cam = camera_outside(&mut rng, &scene, 24, 16);
+    let opts = RenderOptions::default();
+    let (first, _) = Renderer::new(&ctx)
+        .unwrap()
+        .render(&gpu, &cam, &opts)
+        .unwrap();
+    let made = ctx.pipelines_made();
+    assert!(made > 5, "the renderer's kernels: {made}");
+    let (again, _) = Renderer::new(&ctx)
+        .unwrap()
+        .render(&gpu, &cam, &opts)
+        .unwrap();
+    assert_eq!(
+        ctx.pipelines_made(),
+        made,
+        "a second renderer made pipelines"
+    );
+    let bits = |img: &Image| -> Vec<u32> {
+        img.rgb
+            .iter()
+            .flatten()
+            .chain(&img.alpha)
+            .map(|v| v.to_bits())
+            .collect()
+    };
+    assert!(bits(&first) == bits(&again));
+    drop(Backward::with_reduction(&ctx, Reduction::Ordered).unwrap());
+    let with_backward = ctx.pipelines_made();
+    assert!(with_backward > made);
+    drop(Backward::with_reduction(&ctx, Reduction::Ordered).unwrap());
+    drop(RadixSort::new(&ctx, 1024).unwrap());
+    let with_sort = ctx.pipelines_made();
+    drop(RadixSort::new(&ctx, 1024).unwrap());
+    drop(Backward::with_reduction(&ctx, Reduction::Ordered).unwrap());
+    assert_eq!(ctx.pipelines_made(), with_sort);
+    finish(&ctx);
+}
