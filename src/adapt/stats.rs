@@ -11,8 +11,12 @@
 //!   frame): for each voxel with at least one (tile, sign) entry in the view (the
 //!   renderer's own visibility: its near-clipped projected box covers a pixel centre),
 //!   `min(old, max(z, near) / fx)` with z the camera depth of the voxel centre and fx
-//!   the focal length in pixels (Eq. 7b: `z·tan(fov_x/2)/(W/2)`). Never-visible voxels
-//!   keep +inf.
+//!   the focal length in pixels at the view's own resolution, also when its frame is
+//!   supersampled (Eq. 7b: `z·tan(fov_x/2)/(W/2)`). Never-visible voxels keep +inf.
+//!   [`StatsRule`] chooses SVRaster's rule instead (docs/PARITY.md item 9): frames
+//!   supersampled like the model's, and a view shows only the voxels it gives a
+//!   non-zero weight (each view's weights go to a buffer of their own first, then the
+//!   fold takes their max and those voxels' intervals).
 //!
 //! Grow-and-retry: [`StatsPass::add_views`] renders a view again (through
 //! [`Renderer::render_to_device`], which may render it several times while it grows its
@@ -26,12 +30,13 @@
 
 use ash::vk;
 use bytemuck::{Pod, Zeroable};
+use serde::{Deserialize, Serialize};
 
 use crate::camera::Camera;
 use crate::error::{Error, Result};
 use crate::gpu::kernels::push_constants;
 use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel, Ticket};
-use crate::raster::{FrameCheck, FrameStats, RenderOptions, Renderer};
+use crate::raster::{FrameCheck, FrameGeometry, FrameStats, RenderOptions, Renderer};
 use crate::scene::Scene;
 use crate::scene::SceneGpu;
 
@@ -64,13 +69,48 @@ impl VoxelStats {
     }
 }
 
+/// Which voxels a view counts as showing, for the min interval (docs/PARITY.md item 9).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum StatsVisible {
+    /// Every voxel with at least one (tile, sign) entry in the frame: the renderer's
+    /// own visibility (ours; also voxels hidden behind others).
+    #[default]
+    Entries,
+    /// Every voxel with a non-zero blending weight in the frame (SVRaster's
+    /// `compute_training_stat`: `max_w_i > 0`).
+    Weight,
+}
+
+/// How the statistics pass renders its views (docs/PARITY.md item 9).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StatsRule {
+    /// Supersampling of the views' frames (the max weights are those of the
+    /// supersampled rays; the intervals stay those of the views' own resolution).
+    /// Ours 1; SVRaster renders them at the model's (1.5).
+    pub supersample: f32,
+    /// Which voxels a view counts as showing.
+    pub visible: StatsVisible,
+}
+
+impl Default for StatsRule {
+    fn default() -> Self {
+        StatsRule {
+            supersample: 1.0,
+            visible: StatsVisible::Entries,
+        }
+    }
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct IntervalPush {
     frame: u64,
     minint: u64,
+    view_w: u64,
+    maxw: u64,
     count: u32,
-    pad: u32,
+    fx_scale: f32,
 }
 push_constants!(ADAPT_SAMPLING_INTERVAL, IntervalPush);
 
@@ -82,7 +122,11 @@ pub struct StatsPass {
     max_weight: GrowBuffer,
     /// One `f32` per voxel.
     min_interval: GrowBuffer,
+    /// One `u32` (f32 bits) per voxel: the current view's max weights
+    /// ([`StatsVisible::Weight`] only).
+    view_weight: GrowBuffer,
     voxels: u32,
+    rule: StatsRule,
 }
 
 impl StatsPass {
@@ -92,8 +136,28 @@ impl StatsPass {
             kernel: Kernel::new(ctx, &kernels::ADAPT_SAMPLING_INTERVAL)?,
             max_weight: GrowBuffer::new("adapt.max-weight"),
             min_interval: GrowBuffer::new("adapt.min-interval"),
+            view_weight: GrowBuffer::new("adapt.view-weight"),
             voxels: 0,
+            rule: StatsRule::default(),
         })
+    }
+
+    /// How [`StatsPass::add_views`] renders and counts its views (default: supersampling
+    /// 1, visibility by entries).
+    pub fn set_rule(&mut self, rule: StatsRule) -> Result<()> {
+        if !(rule.supersample.is_finite() && (1.0..=8.0).contains(&rule.supersample)) {
+            return Err(Error::Invalid(format!(
+                "statistics supersampling must be in 1..=8, got {}",
+                rule.supersample
+            )));
+        }
+        self.rule = rule;
+        Ok(())
+    }
+
+    /// The rule [`StatsPass::add_views`] follows.
+    pub fn rule(&self) -> StatsRule {
+        self.rule
     }
 
     /// The device context the pass runs on.
@@ -145,8 +209,9 @@ impl StatsPass {
         }
     }
 
-    /// Renders `cam` (supersampling 1, `samples` per voxel segment) and folds its
-    /// weights and intervals into the accumulators. `scene` must have the voxel count
+    /// Renders `cam` (`samples` per voxel segment, supersampled and counted as
+    /// [`StatsPass::set_rule`] says) and folds its weights and intervals into the
+    /// accumulators. `scene` must have the voxel count
     /// given to [`StatsPass::begin`]. Handles the renderer's grow-and-retry (see the
     /// module notes: a retried frame leaves nothing stale). Leaves the renderer's
     /// max-weight target unset afterwards, also on error.
@@ -181,8 +246,15 @@ impl StatsPass {
                 scene.voxels, self.voxels
             )));
         }
-        let mw_addr = self.buffers()?.0.address();
-        renderer.set_max_weight_target(Some(mw_addr));
+        let target = if self.rule.visible == StatsVisible::Weight {
+            // No frame of ours is in flight here.
+            let bytes = u64::from(self.voxels.max(1)) * 4;
+            self.view_weight.ensure(&self.ctx, bytes)?;
+            self.view_weight_buffer()?.address()
+        } else {
+            self.buffers()?.0.address()
+        };
+        renderer.set_max_weight_target(Some(target));
         let done = self.add_views_queued(renderer, scene, cams, samples);
         renderer.set_max_weight_target(None);
         done
@@ -197,8 +269,9 @@ impl StatsPass {
     ) -> Result<()> {
         let opts = RenderOptions {
             samples,
-            supersample: 1.0,
+            supersample: self.rule.supersample,
         };
+        let per_view = self.rule.visible == StatsVisible::Weight;
         let ctx = self.ctx.clone();
         // (view, submission, checks, stats read early)
         type Queued = (usize, Ticket, FrameCheck, Option<FrameStats>);
@@ -206,10 +279,14 @@ impl StatsPass {
         let submit = |me: &Self, renderer: &mut Renderer, i: usize| -> Result<Queued> {
             renderer.prepare(scene, &cams[i], &opts)?;
             let (check, ticket) = ctx.submit(|cmd| {
+                if per_view {
+                    // After the previous view's fold (its barrier) in queue order.
+                    me.record_view_weight_reset(cmd)?;
+                }
                 renderer.record(cmd, scene, &cams[i], &opts, None)?;
                 let check = renderer.record_checks(cmd, None)?;
                 if scene.voxels > 0 {
-                    me.record_interval_fold(cmd, renderer.last_frame()?.params)?;
+                    me.record_fold(cmd, &renderer.last_frame()?, per_view)?;
                 }
                 Ok(check)
             })?;
@@ -237,10 +314,13 @@ impl StatsPass {
                     n.3 = Some(renderer.checked_stats(&n.2)?);
                 }
                 renderer.grow_for(&stats)?;
+                if per_view {
+                    ctx.submit_and_wait(|cmd| self.record_view_weight_reset(cmd))?;
+                }
                 renderer.render_to_device(scene, &cams[j], &opts, None)?;
                 if scene.voxels > 0 {
-                    let params = renderer.last_frame()?.params;
-                    ctx.submit_and_wait(|cmd| self.record_interval_fold(cmd, params))?;
+                    let frame = renderer.last_frame()?;
+                    ctx.submit_and_wait(|cmd| self.record_fold(cmd, &frame, per_view))?;
                 }
             }
             queued = next;
@@ -248,12 +328,6 @@ impl StatsPass {
         Ok(())
     }
 
-    /// Records the interval fold of a frame recorded earlier (for callers recording
-    /// their own frames, e.g. in one command buffer after [`Renderer::record`]):
-    /// `params` is [`Renderer::last_frame`]'s parameter block, and the frame must have
-    /// the voxel count given to [`StatsPass::begin`] and turn out complete. Needs a
-    /// compute barrier after the frame (as [`Renderer::record`] leaves one); records one
-    /// after the dispatch.
     /// Folds one view into the min-interval accumulator only (the max weights are left
     /// as they are): runs the frame's preprocess, not its sort or compositing, so it costs
     /// a small fraction of [`StatsPass::add_view`]. The initialisation's visibility test.
@@ -281,8 +355,7 @@ impl StatsPass {
         let ctx = self.ctx.clone();
         ctx.submit_and_wait(|cmd| {
             renderer.record_preprocess(cmd, scene, cam, &opts)?;
-            let params = renderer.last_frame()?.params;
-            self.record_interval_fold(cmd, params)
+            self.record_interval_fold(cmd, &renderer.last_frame()?)
         })
     }
 
@@ -303,17 +376,59 @@ impl StatsPass {
         self.read()
     }
 
-    pub fn record_interval_fold(&self, cmd: vk::CommandBuffer, params: u64) -> Result<()> {
-        let (_, mi) = self.buffers()?;
+    /// Records the interval fold of a frame recorded earlier (for callers recording
+    /// their own frames, e.g. in one command buffer after [`Renderer::record`]):
+    /// `frame` is [`Renderer::last_frame`], which must have the voxel count given to
+    /// [`StatsPass::begin`] and turn out complete; the frame's entries decide which
+    /// voxels it shows. Needs a compute barrier after the frame (as
+    /// [`Renderer::record`] leaves one); records one after the dispatch.
+    pub fn record_interval_fold(
+        &self,
+        cmd: vk::CommandBuffer,
+        frame: &FrameGeometry,
+    ) -> Result<()> {
+        self.record_fold(cmd, frame, false)
+    }
+
+    /// The interval fold; with `per_view`, only voxels with a weight in the frame's
+    /// own max-weight target (the view-weight buffer) count as shown, and their weights
+    /// are folded into the max-weight accumulator.
+    fn record_fold(
+        &self,
+        cmd: vk::CommandBuffer,
+        frame: &FrameGeometry,
+        per_view: bool,
+    ) -> Result<()> {
+        let (mw, mi) = self.buffers()?;
+        let view_w = match per_view {
+            true => self.view_weight_buffer()?.address(),
+            false => 0,
+        };
         let push = IntervalPush {
-            frame: params,
+            frame: frame.params,
             minint: mi.address(),
+            view_w,
+            maxw: mw.address(),
             count: self.voxels,
-            pad: 0,
+            // The render-resolution fx back to the view's own (exactly 1 unsupersampled).
+            fx_scale: (f64::from(frame.out_width) / f64::from(frame.render_width)) as f32,
         };
         self.kernel.dispatch_1d(cmd, &push, self.voxels);
         recorder::barrier(&self.ctx, cmd);
         Ok(())
+    }
+
+    /// Zeroes the view-weight buffer (and a barrier) before a view's frame.
+    fn record_view_weight_reset(&self, cmd: vk::CommandBuffer) -> Result<()> {
+        recorder::zero(&self.ctx, cmd, self.view_weight_buffer()?);
+        recorder::barrier(&self.ctx, cmd);
+        Ok(())
+    }
+
+    fn view_weight_buffer(&self) -> Result<&Buffer> {
+        self.view_weight.buffer().ok_or_else(|| {
+            Error::Invalid("StatsPass: the view-weight buffer was not allocated".into())
+        })
     }
 
     /// Device address of the max-weight accumulator (one `u32` of `f32` bits per voxel).

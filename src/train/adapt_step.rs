@@ -9,6 +9,7 @@ use super::backward::Gradients;
 use super::config::{AdaptStep, Layout};
 use super::optim::Moments;
 use super::trainer::Trainer;
+use crate::adapt::stats::StatsRule;
 use crate::adapt::topology::Changed;
 use crate::adapt::AdaptReport;
 use crate::error::{Error, Result};
@@ -22,6 +23,10 @@ impl Trainer {
         let cfg = self.cfg.clone();
         let n = self.scene.voxels as usize;
         self.stats.begin(n as u32)?;
+        self.stats.set_rule(StatsRule {
+            supersample: cfg.stats_ss,
+            visible: cfg.stats_visible,
+        })?;
         // Every view queued behind the next (one submission each, no drain but the last).
         self.stats
             .add_views(&mut self.renderer, &self.scene, &self.cams, cfg.samples)?;

@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 pub use super::schedule::{AdaptStep, Schedule};
 
+pub use crate::adapt::stats::StatsVisible;
 use crate::error::{Error, Result};
 
 /// Bound modes accepted by the `bound` config key (`box`: use `center`/`extent` as set).
@@ -211,6 +212,15 @@ pub struct TrainConfig {
     /// there; docs/PARITY.md item 4). Off by default: moments are carried to the new
     /// layout (a research switch, unmeasured at the paper's resolution).
     pub reset_adam_at_adapt: bool,
+    /// Supersampling of the adaptive step's statistics frames: the max weights of
+    /// pruning are those of its rays, the sampling intervals stay those of the views'
+    /// own resolution. 1: ours; SVRaster renders them at the model's `ss` (1.5;
+    /// docs/PARITY.md item 9).
+    pub stats_ss: f32,
+    /// Which voxels a view shows, for the sampling-rate guard: "entries" (ours: every
+    /// voxel the frame lists, also those hidden behind others) or "weight" (SVRaster:
+    /// those it gives a non-zero blending weight; docs/PARITY.md item 9).
+    pub stats_visible: StatsVisible,
     pub max_level: u32,
     /// Voxel budget: subdivision stops here (0: derived from the device's memory).
     pub max_voxels: u64,
@@ -285,6 +295,8 @@ impl Default for TrainConfig {
             subdivide_min_rate: 2.0,
             subdivide_all_until: 0.0,
             reset_adam_at_adapt: false,
+            stats_ss: 1.0,
+            stats_visible: StatsVisible::Entries,
             max_level: crate::scene::MAX_LEVEL,
             max_voxels: 0,
             log_every: 100,
@@ -654,6 +666,9 @@ impl TrainConfig {
             if !(v.is_finite() && v >= 0.0) {
                 return bad(k, "must be finite and ≥ 0");
             }
+        }
+        if !(self.stats_ss.is_finite() && (1.0..=8.0).contains(&self.stats_ss)) {
+            return bad("stats_ss", "must be in [1, 8]");
         }
         if !((0.0..1.0).contains(&self.beta1) && (0.0..1.0).contains(&self.beta2)) {
             return bad("beta1/beta2", "must be in [0, 1)");

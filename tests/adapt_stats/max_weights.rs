@@ -308,5 +308,120 @@ fn grow_and_retry_leaves_no_stale_statistics() {
     }
     assert!(bits(&got.min_interval) == bits(&want.min_interval));
     assert!(want.max_weight.iter().filter(|&&w| w > 0.0).count() > 10);
+
+    // SVRaster's rule (each view's weights in a buffer of their own, supersampled
+    // frames): a queue that regrows mid-way gives the statistics of views added one at
+    // a time to a renderer with room to spare.
+    pass.set_rule(StatsRule {
+        supersample: 1.25,
+        visible: StatsVisible::Weight,
+    })
+    .unwrap();
+    pass.begin(n).unwrap();
+    for cam in &cams {
+        pass.add_view(&mut big, &gpu, cam, 1).unwrap();
+    }
+    let want_w = pass.read().unwrap();
+    let mut regrow = Renderer::new(&ctx).unwrap();
+    regrow.set_chunk_size(40);
+    pass.begin(n).unwrap();
+    let c0 = ctx.queue_counters();
+    pass.add_views(&mut regrow, &gpu, &cams, 1).unwrap();
+    let c = ctx.queue_counters() - c0;
+    let got_w = pass.read().unwrap();
+    assert!(
+        c.submits > cams.len() as u64,
+        "the test must regrow mid-queue"
+    );
+    assert!(bits(&got_w.max_weight) == bits(&want_w.max_weight));
+    assert!(bits(&got_w.min_interval) == bits(&want_w.min_interval));
+    // The rule changes the statistics (supersampled weights; hidden voxels keep +inf).
+    assert!(bits(&got_w.max_weight) != bits(&want.max_weight));
+    finish(&ctx);
+}
+
+/// SVRaster's statistics rule (docs/PARITY.md item 9) against the reference: frames
+/// supersampled ×1.5, so the max weights are those of the supersampled rays, while the
+/// intervals stay `max(z, near) / fx` at each view's own resolution; and a view shows
+/// only the voxels it gives a non-zero weight (`StatsVisible::Weight`), not every
+/// voxel it lists (`Entries`, checked here supersampled too).
+#[test]
+fn supersampled_statistics_and_weight_visibility_match_reference() {
+    let ctx = context();
+    let mut pass = StatsPass::new(&ctx).unwrap();
+    let ss = 1.5f32;
+    // Voxels a view lists but gives no weight (hidden behind others): the two rules
+    // differ only there.
+    let mut hidden = 0usize;
+    for visible in [StatsVisible::Weight, StatsVisible::Entries] {
+        for seed in 0..3u64 {
+            let mut renderer = Renderer::new(&ctx).unwrap();
+            let mut rng = Rng(7070 + seed);
+            let max_level = [5, 8, 12][seed as usize];
+            let scene = random_scene(&mut rng, max_level, (seed % 3) as u32);
+            let n = scene.num_voxels();
+            let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+            let cams = [
+                camera_outside(&mut rng, &scene, 32, 24),
+                camera_inside(&mut rng, &scene, 28, 20),
+            ];
+            let what = format!("{visible:?}, seed {seed} (levels ≤{max_level}, {n} voxels)");
+            pass.set_rule(StatsRule {
+                supersample: ss,
+                visible,
+            })
+            .unwrap();
+            pass.begin(n as u32).unwrap();
+            let mut weights = vec![WeightBounds::default(); n];
+            let mut intervals = vec![IntervalBounds::default(); n];
+            for cam in &cams {
+                pass.add_view(&mut renderer, &gpu, cam, 1).unwrap();
+                let rw = (cam.width as f64 * ss as f64).round() as u32;
+                let rh = (cam.height as f64 * ss as f64).round() as u32;
+                let rcam = cam.resized(rw, rh);
+                let mut view = vec![WeightBounds::default(); n];
+                reference_max_weights(&scene, &rcam, 1, &mut view);
+                for (w, v) in weights.iter_mut().zip(&view) {
+                    w.lo = w.lo.max(v.lo);
+                    w.hi = w.hi.max(v.hi);
+                }
+                let listed = |i: usize| reference_visibility(&scene, &rcam, i);
+                match visible {
+                    StatsVisible::Weight => {
+                        hidden += (0..n)
+                            .filter(|&i| listed(i) == Vis::Yes && view[i].hi == 0.0)
+                            .count();
+                        fold_intervals(&scene, cam, &mut intervals, |i| {
+                            if view[i].lo > 0.0 {
+                                Vis::Yes
+                            } else if view[i].hi > 0.0 {
+                                Vis::Maybe
+                            } else {
+                                Vis::No
+                            }
+                        });
+                    }
+                    StatsVisible::Entries => fold_intervals(&scene, cam, &mut intervals, listed),
+                }
+            }
+            let stats = pass.read().unwrap();
+            let r = compare(&stats, &weights, &intervals, &what);
+            println!("{what}: {r:?}");
+            assert!(r.weighted > 10, "{what}: too few voxels contribute: {r:?}");
+            assert!(r.visible > 10, "{what}: too few visible voxels: {r:?}");
+            assert!(
+                r.vis_ambiguous * 10 <= r.voxels,
+                "{what}: too many ambiguous visibilities: {r:?}"
+            );
+        }
+    }
+    println!("voxels listed but unweighted in a view: {hidden}");
+    assert!(hidden > 10, "the test must tell the two view sets apart");
+    assert!(pass
+        .set_rule(StatsRule {
+            supersample: 0.5,
+            visible: StatsVisible::Weight
+        })
+        .is_err());
     finish(&ctx);
 }

@@ -24,7 +24,7 @@ use crate::common;
 
 use common::reference::{self, alpha_of, pixel_ray, EARLY_STOP_T, MIN_ALPHA};
 use common::{camera_inside, camera_outside, context, finish, random_scene, Rng};
-use svraster::adapt::stats::{StatsPass, VoxelStats};
+use svraster::adapt::stats::{StatsPass, StatsRule, StatsVisible, VoxelStats};
 use svraster::data::Camera;
 use svraster::raster::{Image, RenderOptions, Renderer};
 use svraster::scene::SceneGpu;
@@ -282,10 +282,21 @@ impl Default for IntervalBounds {
 }
 
 fn reference_intervals(scene: &Scene, cam: &Camera, out: &mut [IntervalBounds]) {
+    fold_intervals(scene, cam, out, |i| reference_visibility(scene, cam, i));
+}
+
+/// Folds `cam`'s intervals (`max(z, near) / fx` at its own resolution) into `out` for
+/// the voxels `vis` says it shows.
+fn fold_intervals(
+    scene: &Scene,
+    cam: &Camera,
+    out: &mut [IntervalBounds],
+    vis: impl Fn(usize) -> Vis,
+) {
     let o = cam.origin();
     let fwd = [cam.c2w[0][2], cam.c2w[1][2], cam.c2w[2][2]];
     for (i, b) in out.iter_mut().enumerate() {
-        let vis = reference_visibility(scene, cam, i);
+        let vis = vis(i);
         if vis == Vis::No {
             continue;
         }
