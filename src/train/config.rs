@@ -6,6 +6,7 @@ use serde::{Deserialize, Serialize};
 
 pub use super::schedule::{AdaptStep, Schedule};
 
+pub use super::config_modes::{ClampGrad, Layout, TvForm};
 pub use crate::adapt::stats::StatsVisible;
 use crate::error::{Error, Result};
 
@@ -303,34 +304,6 @@ impl Default for TrainConfig {
             checkpoint_every: 0.25,
         }
     }
-}
-
-/// How the voxel layout changes during training (see [`TrainConfig::layout`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Layout {
-    Adaptive,
-    Uniform,
-    Fixed,
-}
-
-/// The total-variation penalty's form (see [`TrainConfig::tv_form`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum TvForm {
-    L2,
-    L1,
-}
-
-/// How a gradient passes the colour clamp (see [`TrainConfig::colour_clamp_grad`]).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ClampGrad {
-    /// The clamp's own derivative: no gradient where the colour is clamped.
-    #[default]
-    Masked,
-    /// Straight through: the gradient reaches the SH as if there were no clamp.
-    Straight,
 }
 
 /// Named presets (applied before `--set` overrides).

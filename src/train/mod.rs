@@ -5,6 +5,7 @@ mod adapt_step;
 pub mod backward;
 pub mod bounds;
 pub mod config;
+mod config_modes;
 mod init;
 mod iteration;
 pub mod loss;
