@@ -21,15 +21,20 @@ struct W {
 }
 
 /// f64 loss: λ_mse·mean((rgb − gt)²) + λ_T·mean(T²(1−T)²) + λ_in·mean(T²),
-/// T = 1 − alpha.
-fn loss(rgb: &[[f64; 3]], alpha: &[f64], gt: &[[f64; 3]], w: W) -> f64 {
+/// T = 1 − alpha; with `clamp`, rgb clamped to [0, 1] first.
+fn loss(rgb: &[[f64; 3]], alpha: &[f64], gt: &[[f64; 3]], w: W, clamp: bool) -> f64 {
     let n = rgb.len() as f64;
     let mut se = 0.0;
     let mut tc = 0.0;
     let mut tin = 0.0;
     for p in 0..rgb.len() {
         for c in 0..3 {
-            se += (rgb[p][c] - gt[p][c]).powi(2);
+            let x = if clamp {
+                rgb[p][c].clamp(0.0, 1.0)
+            } else {
+                rgb[p][c]
+            };
+            se += (x - gt[p][c]).powi(2);
         }
         let t = 1.0 - alpha[p];
         tc += t * t * (1.0 - t) * (1.0 - t);
@@ -51,9 +56,15 @@ fn pixel_losses_match_the_f64_reference() {
         t: 0.7,
         i: 0.45,
     };
-    for ss in [1.0f32, 1.5] {
-        let cam = camera_outside(&mut rng, &scene, 37, 29);
-        let gpu = SceneGpu::upload(&ctx, &scene).unwrap();
+    // With the rgb clamp, a brighter copy of the scene: part of its output is above 1.
+    let mut bright = scene.clone();
+    for v in bright.sh0.iter_mut().flatten() {
+        *v = *v * 3.0 + 0.8;
+    }
+    for (ss, clamp) in [(1.0f32, false), (1.5, false), (1.0, true), (1.5, true)] {
+        let scene = if clamp { &bright } else { &scene };
+        let cam = camera_outside(&mut rng, scene, 37, 29);
+        let gpu = SceneGpu::upload(&ctx, scene).unwrap();
         let mut r = Renderer::new(&ctx).unwrap();
         // The distortion sum is checked below.
         r.set_outputs(FrameOutputs {
@@ -98,6 +109,7 @@ fn pixel_losses_match_the_f64_reference() {
                     t_concentration: w.t as f32,
                     t_inside: w.i as f32,
                 },
+                clamp,
             )
         })
         .unwrap();
@@ -108,8 +120,27 @@ fn pixel_losses_match_the_f64_reference() {
 
         let rgb: Vec<[f64; 3]> = img.rgb.iter().map(|c| c.map(|v| v as f64)).collect();
         let alpha: Vec<f64> = img.alpha.iter().map(|&a| a as f64).collect();
+        let outside = rgb
+            .iter()
+            .flatten()
+            .filter(|v| !(0.0..=1.0).contains(*v))
+            .count();
+        match pl.clamped_rgb() {
+            Some(buf) => {
+                assert!(clamp);
+                // Enough of the output outside [0, 1] for the clamp to be seen.
+                assert!(outside * 10 >= 3 * np, "{outside} of {} outside", 3 * np);
+                let got: Vec<f32> = ctx.download(buf, 0, 3 * np).unwrap();
+                for p in 0..np {
+                    for c in 0..3 {
+                        assert_eq!(got[c * np + p], img.rgb[p][c].clamp(0.0, 1.0));
+                    }
+                }
+            }
+            None => assert!(!clamp),
+        }
         // Value.
-        let l_ref = loss(&rgb, &alpha, &gt, w);
+        let l_ref = loss(&rgb, &alpha, &gt, w, clamp);
         let l_gpu = w.m * sums.squared_error / (3.0 * np as f64)
             + w.t * sums.t_concentration / np as f64
             + w.i * sums.t_inside / np as f64;
@@ -141,7 +172,21 @@ fn pixel_losses_match_the_f64_reference() {
                         a1[p] += h;
                         a2[p] -= h;
                     }
-                    (loss(&r1, &a1, &gt, w) - loss(&r2, &a2, &gt, w)) / (2.0 * h)
+                    (loss(&r1, &a1, &gt, w, clamp) - loss(&r2, &a2, &gt, w, clamp)) / (2.0 * h)
+                };
+                // At the clamp's kinks a central difference is the mean of the two
+                // sides; the rule there is the clamp's derivative (1 on [0, 1]
+                // inclusive).
+                let fd = if clamp && c < 3 && (rgb[p][c].abs() <= h || (rgb[p][c] - 1.0).abs() <= h)
+                {
+                    let pass = if (0.0..=1.0).contains(&rgb[p][c]) {
+                        1.0
+                    } else {
+                        0.0
+                    };
+                    pass * 2.0 * w.m * (rgb[p][c].clamp(0.0, 1.0) - gt[p][c]) / (3.0 * np as f64)
+                } else {
+                    fd
                 };
                 let ch = if c < 3 { dout::R + c } else { dout::ALPHA };
                 let g = d[ch * np + p] as f64;
@@ -156,17 +201,18 @@ fn pixel_losses_match_the_f64_reference() {
             }
         }
         println!(
-            "ss {ss}: loss {l_gpu:.6} (ref {l_ref:.6}); gradient error {worst:.2e} of {scale:.2e}"
+            "ss {ss} clamp {clamp} ({outside} outside [0, 1]): loss {l_gpu:.6} (ref {l_ref:.6}); \
+             gradient error {worst:.2e} of {scale:.2e}"
         );
         assert!(worst <= 1e-4 * scale, "gradient error {worst} of {scale}");
 
         // Distortion sum (render resolution) vs the f64 reference forward, without
         // supersampling (the reference renders at the camera's size).
         if ss == 1.0 {
-            let rays = pixel_rays(&scene, &cam);
+            let rays = pixel_rays(scene, &cam);
             let ev = evaluate(
-                &scene,
-                &Params::of(&scene),
+                scene,
+                &Params::of(scene),
                 &rays,
                 1,
                 &vec![PixelWeights::default(); np],
@@ -176,6 +222,7 @@ fn pixel_losses_match_the_f64_reference() {
                     lambda_r_colour: 0.0,
                     dist_contracted: false,
                     colour_straight: false,
+                    alpha_straight: false,
                 },
                 None,
             );

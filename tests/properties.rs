@@ -329,6 +329,7 @@ fn gradients_match_the_reference_on_drawn_scenes() {
                 lambda_r_colour: 0.0,
                 dist_contracted: false,
                 colour_straight: false,
+                alpha_straight: false,
             }
         } else {
             LossSpec {
@@ -337,6 +338,7 @@ fn gradients_match_the_reference_on_drawn_scenes() {
                 lambda_r_colour: 0.0,
                 dist_contracted: false,
                 colour_straight: false,
+                alpha_straight: false,
             }
         };
         {

@@ -178,6 +178,7 @@ fn random_spec(rng: &mut Rng) -> LossSpec {
         lambda_r_colour: 0.0,
         dist_contracted: false,
         colour_straight: false,
+        alpha_straight: false,
     }
 }
 
@@ -208,6 +209,7 @@ fn only_term(pix: &[PixelWeights], spec: &LossSpec, t: usize) -> (Vec<PixelWeigh
         lambda_r_colour: 0.0,
         dist_contracted: spec.dist_contracted,
         colour_straight: spec.colour_straight,
+        alpha_straight: spec.alpha_straight,
     };
     (pix, spec)
 }
@@ -601,6 +603,7 @@ fn colour_only_point_rgb_matches_finite_differences_on_the_colours() {
             lambda_r_colour: lc,
             dist_contracted: false,
             colour_straight: false,
+            alpha_straight: false,
         };
         let an = grads_with(&c.scene, &params, &rays, c.k, &pix, &colour_only);
         assert!(
@@ -620,6 +623,7 @@ fn colour_only_point_rgb_matches_finite_differences_on_the_colours() {
                 lambda_r_colour: 0.0,
                 dist_contracted: false,
                 colour_straight: false,
+                alpha_straight: false,
             },
         };
         let base = evaluate(

@@ -460,3 +460,109 @@ fn gpu_large_frame_2d_grid() {
     drop(ssim);
     common::finish(&ctx);
 }
+
+/// SSIM of a clamped image (`Ssim::record_clamped`, the loss on clamp(raw, 0, 1)): the
+/// value is the reference's SSIM of the clamped image, and the gradient added is the
+/// reference's gradient at the clamped image where the raw value is in [0, 1]
+/// (inclusive: exact 0 and 1 pass, as the clamp's derivative in torch) and exactly
+/// nothing elsewhere. About a third of the raw values lie outside [0, 1].
+#[test]
+fn gpu_clamped_input_passes_the_gradient_only_inside() {
+    let ctx = common::context();
+    let mut ssim = Ssim::new(&ctx).unwrap();
+    let mut rng = Rng(0x5513_0006);
+    let (w, h) = (37usize, 23usize);
+    let n = w * h;
+    let raw: Vec<[f32; 3]> = (0..n)
+        .map(|p| {
+            std::array::from_fn(|c| match (p * 3 + c) % 11 {
+                0 => 0.0,
+                1 => 1.0,
+                _ => rng.range(-0.35, 1.35) as f32,
+            })
+        })
+        .collect();
+    let x: Vec<[f32; 3]> = raw.iter().map(|p| p.map(|v| v.clamp(0.0, 1.0))).collect();
+    let y = noisy_copy(&mut rng, &x, 0.2);
+    let want_v = ssim_cpu(&x, &y, w, h);
+    let full = ssim_grad_cpu(&x, &y, w, h);
+    let weight = -0.7f32;
+    let want: Vec<[f64; 3]> = raw
+        .iter()
+        .zip(&full)
+        .map(|(r, g)| {
+            std::array::from_fn(|c| {
+                if (0.0..=1.0).contains(&r[c]) {
+                    g[c] * weight as f64
+                } else {
+                    0.0
+                }
+            })
+        })
+        .collect();
+    let outside = raw
+        .iter()
+        .flatten()
+        .filter(|v| !(0.0..=1.0).contains(*v))
+        .count();
+    assert!(
+        outside * 4 > 3 * n,
+        "{outside} of {} raw values outside [0, 1]",
+        3 * n
+    );
+    ssim.prepare(w as u32, h as u32).unwrap();
+    let xb = ctx.buffer_from("x", &planar(&x)).unwrap();
+    let rb = ctx.buffer_from("raw", &planar(&raw)).unwrap();
+    let yb = ctx.buffer_from("y", &planar(&y)).unwrap();
+    let g0: Vec<f32> = (0..3 * n).map(|_| rng.range(-1e-4, 1e-4) as f32).collect();
+    let gb = ctx.buffer_from("grad", &g0).unwrap();
+    ctx.submit_and_wait(|cmd| {
+        assert!(ssim
+            .record_clamped(
+                cmd,
+                xb.address(),
+                0,
+                yb.address(),
+                gb.address(),
+                weight,
+                37,
+                23
+            )
+            .is_err());
+        ssim.record_clamped(
+            cmd,
+            xb.address(),
+            rb.address(),
+            yb.address(),
+            gb.address(),
+            weight,
+            w as u32,
+            h as u32,
+        )
+    })
+    .unwrap();
+    let value = ssim.read_value().unwrap();
+    let g1: Vec<f32> = ctx.download(&gb, 0, 3 * n).unwrap();
+    let delta: Vec<[f64; 3]> = (0..n)
+        .map(|p| std::array::from_fn(|c| g1[c * n + p] as f64 - g0[c * n + p] as f64))
+        .collect();
+    for p in 0..n {
+        for c in 0..3 {
+            if !(0.0..=1.0).contains(&raw[p][c]) {
+                assert_eq!(
+                    g1[c * n + p],
+                    g0[c * n + p],
+                    "pixel {p} channel {c} outside"
+                );
+            }
+        }
+    }
+    let dv = (value - want_v).abs();
+    let dg = rel_err(&delta, &want);
+    eprintln!("clamped: ssim {want_v:.6} |Δvalue| {dv:.2e} grad rel {dg:.2e}, {outside} outside");
+    assert!(dv <= 5e-7, "value {value} vs {want_v}");
+    assert!(dg <= 2e-5, "gradient relative error {dg:e}");
+    drop((xb, rb, yb, gb));
+    drop(ssim);
+    common::finish(&ctx);
+}

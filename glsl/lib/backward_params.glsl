@@ -30,7 +30,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) buffer BackParams 
     U32s point_list;  // per voxel corner, grouped by grid point, ascending
     uint gather_span; // records a voxel sums per records_gather pass
     uint colour_straight; // 1: ∂L/∂rgb passes max(0, ·) straight through (SVRaster's)
-    uint pad2;
+    uint alpha_straight;  // 1: ∂L/∂α passes min(MAX_ALPHA, ·) straight through (SVRaster's)
     uint pad3;
 };
 

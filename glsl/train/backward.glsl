@@ -285,7 +285,10 @@ uint bpx_step(inout BPx s, Entry e, uint idx, bool need, inout float red[16]) {
     float phi = alpha * lin + s.dD * dval;
     float g_alpha = Tk * (dphi - s.A);
     red[VG_PRIO] += abs(alpha * g_alpha);
-    float g_vol = raw_alpha > MAX_ALPHA ? 0.0 : g_alpha * exp(-vol);
+    // Past the clamp α = min(MAX_ALPHA, ·): its derivative (0), or straight through
+    // with alpha_straight (SVRaster's backward.cu uses exp(−vol) either way).
+    bool a_straight = pc.back.alpha_straight != 0u;
+    float g_vol = raw_alpha > MAX_ALPHA && !a_straight ? 0.0 : g_alpha * exp(-vol);
     float d_lv[N_SAMP];
     for (int k = 0; k < N_SAMP; ++k) d_lv[k] = g_vol;
 #if N_SAMP > 1
@@ -295,7 +298,7 @@ uint bpx_step(inout BPx s, Entry e, uint idx, bool need, inout float red[16]) {
         float t = a + (float(k) + 0.5) * step_sz;
         float dla = trs[k] * (t - S);
         float lraw = alpha_of_depth(lv[k]);
-        if (lraw <= MAX_ALPHA) d_lv[k] += Tk * s.dD * dla * exp(-lv[k]);
+        if (lraw <= MAX_ALPHA || a_straight) d_lv[k] += Tk * s.dD * dla * exp(-lv[k]);
         S = la[k] * t + (1.0 - la[k]) * S;
     }
 #endif

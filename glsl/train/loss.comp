@@ -5,7 +5,9 @@
 // reference's lambda_T_inside: every ray ends inside the model, mean over npix); writes
 // EVERY channel of
 // `dout` (rgb and alpha gradients, zero depth/normal gradients, the ground truth) —
-// SSIM then adds its gradient to the rgb channels. Per-workgroup partial sums of the
+// SSIM then adds its gradient to the rgb channels. With `clamp_rgb` the rgb losses see
+// clamp(rgb, 0, 1) (SVRaster's training and our eval), their gradient passes only where
+// rgb is in [0, 1], and the clamped image goes to `clamped` for SSIM. Per-workgroup partial sums of the
 // squared error, the concentration term, the render-resolution distortion values and
 // the inside term go to `partials` (4 floats per workgroup; the host adds them when it
 // logs).
@@ -24,7 +26,8 @@ layout(push_constant) uniform Push {
     uint nout;
     uint nrender;
     float w_tin;    // λ_T_inside / npix
-    uint pad;
+    uint clamp_rgb; // 1: the rgb losses on clamp(rgb, 0, 1), as SVRaster (renderer.py:176)
+    F32s clamped;   // clamp_rgb: planar clamped rgb at output resolution (SSIM's input)
 } pc;
 
 shared float s_red[4][256];
@@ -40,9 +43,17 @@ void main() {
         float a = pc.out_img.v[CH_T * nout + q];  // alpha after finalize
         for (uint c = 0u; c < 3u; ++c) {
             float y = pc.gt.v[c * nout + q];
-            float d = pc.out_img.v[c * nout + q] - y;
+            float x = pc.out_img.v[c * nout + q];
+            // The clamp's derivative (torch's): 1 on [0, 1] inclusive, 0 outside.
+            float pass = 1.0;
+            if (pc.clamp_rgb != 0u) {
+                pass = x >= 0.0 && x <= 1.0 ? 1.0 : 0.0;
+                x = clamp(x, 0.0, 1.0);
+                pc.clamped.v[c * nout + q] = x;
+            }
+            float d = x - y;
             se += d * d;
-            pc.dout.v[c * nout + q] = 2.0 * pc.w_mse * d;
+            pc.dout.v[c * nout + q] = 2.0 * pc.w_mse * d * pass;
             pc.dout.v[(DO_GTR + c) * nout + q] = y;
         }
         float T = 1.0 - a;

@@ -16,6 +16,8 @@ layout(push_constant) uniform Push {
     float scale;
     uint pad;
     float gauss[12];
+    F32s pass_if; // 0, or an image (layout of x) whose values outside [0, 1] stop the
+                  // gradient: x is that image clamped (the clamp's derivative)
 } pc;
 
 void main() {
@@ -35,5 +37,9 @@ void main() {
         for (uint k = 0u; k < 3u; ++k) acc[k] += g * pc.src.v[q + k * npix];
     }
     float d = acc[0] + 2.0 * pc.x.v[i] * acc[1] + pc.y.v[i] * acc[2];
+    if (uint64_t(pc.pass_if) != 0ul) {
+        float o = pc.pass_if.v[i];
+        if (!(o >= 0.0 && o <= 1.0)) d = 0.0;
+    }
     pc.grad.v[i] += pc.scale * d;
 }

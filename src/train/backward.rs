@@ -288,7 +288,9 @@ struct BackParams {
     gather_span: u32,
     /// 1: the colour gradient passes the clamp straight through ([`ClampGrad::Straight`]).
     colour_straight: u32,
-    pad2: u32,
+    /// 1: the density gradient passes the α clamp straight through
+    /// (`alpha_clamp_grad` = [`ClampGrad::Straight`]).
+    alpha_straight: u32,
     pad3: u32,
 }
 gpu_layout!(BackParams, BackParams);
@@ -352,6 +354,7 @@ pub struct Backward {
     /// Records per voxel one records_gather pass sums (the loop limit).
     gather_span: u32,
     clamp_grad: ClampGrad,
+    alpha_clamp_grad: ClampGrad,
     params: Buffer,
     lost: Buffer,
     dout: GrowBuffer,
@@ -424,6 +427,7 @@ impl Backward {
                 u32::MAX
             },
             clamp_grad: ClampGrad::Masked,
+            alpha_clamp_grad: ClampGrad::Masked,
             params: ctx.buffer(
                 "backward.params",
                 std::mem::size_of::<BackParams>() as u64,
@@ -462,6 +466,13 @@ impl Backward {
     /// The colour clamp's gradient rule in use.
     pub fn colour_clamp_grad(&self) -> ClampGrad {
         self.clamp_grad
+    }
+
+    /// How the density gradient passes the clamp α = min(MAX_ALPHA, 1 − exp(−vol))
+    /// (default: masked, the clamp's derivative 0; straight: exp(−vol) as if
+    /// unclamped, SVRaster's `backward.cu`).
+    pub fn set_alpha_clamp_grad(&mut self, mode: ClampGrad) {
+        self.alpha_clamp_grad = mode;
     }
 
     /// Entries per backward dispatch (tests shrink it to exercise chunking).

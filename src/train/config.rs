@@ -160,6 +160,16 @@ pub struct TrainConfig {
     /// commented out, so a clamped colour's SH keep receiving the gradient and can come
     /// back; docs/PARITY.md, the colour clamp's gradient).
     pub colour_clamp_grad: ClampGrad,
+    /// How the density gradient passes the opacity clamp α = min(0.99999, 1 − exp(−vol)):
+    /// "masked" (its derivative: a sample whose α is clamped passes none) or "straight"
+    /// (exp(−vol) as if unclamped, SVRaster's `backward.cu`: tiny, but Adam scales a
+    /// grid point's step by its gradient's own size; docs/PARITY.md item 10).
+    pub alpha_clamp_grad: ClampGrad,
+    /// The rgb losses (MSE, SSIM) on the output clamped to [0, 1], as SVRaster trains
+    /// (`renderer.py:176` clamps before its loss) and as eval measures: a pixel
+    /// brighter than 1 (or below 0) costs nothing more and passes no rgb gradient.
+    /// Off: the losses see the raw output (docs/PARITY.md item 10).
+    pub clamp_rgb_loss: bool,
     pub lambda_tv: f32,
     pub tv_until: f64,
     /// The TV penalty's form: "l2" (ours: Σ Δ² over the cube edges, zero gradient on
@@ -280,6 +290,8 @@ impl Default for TrainConfig {
             lambda_r: 0.01,
             lambda_r_colour: 0.0,
             colour_clamp_grad: ClampGrad::Masked,
+            alpha_clamp_grad: ClampGrad::Masked,
+            clamp_rgb_loss: false,
             lambda_tv: 1e-10,
             tv_until: 0.5,
             tv_form: TvForm::L2,

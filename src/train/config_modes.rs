@@ -20,13 +20,14 @@ pub enum TvForm {
     L1,
 }
 
-/// How a gradient passes the colour clamp (see [`super::config::TrainConfig::colour_clamp_grad`]).
+/// How a gradient passes a clamp (see [`super::config::TrainConfig::colour_clamp_grad`]
+/// and [`super::config::TrainConfig::alpha_clamp_grad`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ClampGrad {
-    /// The clamp's own derivative: no gradient where the colour is clamped.
+    /// The clamp's own derivative: no gradient where the value is clamped.
     #[default]
     Masked,
-    /// Straight through: the gradient reaches the SH as if there were no clamp.
+    /// Straight through: the gradient passes as if there were no clamp.
     Straight,
 }

@@ -242,6 +242,7 @@ impl Trainer {
         tv.set_form(cfg.tv_form);
         let mut backward = Backward::with_reduction(ctx, reduction)?;
         backward.set_colour_clamp_grad(cfg.colour_clamp_grad);
+        backward.set_alpha_clamp_grad(cfg.alpha_clamp_grad);
         Ok(Trainer {
             ctx: ctx.clone(),
             rng: rand_pcg::Pcg64::seed_from_u64(cfg.seed),

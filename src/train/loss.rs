@@ -9,7 +9,7 @@ use ash::vk;
 
 use crate::error::Result;
 use crate::gpu::kernels::push_constants;
-use crate::gpu::{kernels, recorder, Context, GrowBuffer, Kernel};
+use crate::gpu::{kernels, recorder, Buffer, Context, GrowBuffer, Kernel};
 use crate::raster::FrameGeometry;
 
 #[repr(C)]
@@ -25,7 +25,8 @@ struct LossPush {
     nout: u32,
     nrender: u32,
     w_tin: f32,
-    pad: u32,
+    clamp_rgb: u32,
+    clamped: u64,
 }
 push_constants!(TRAIN_LOSS, LossPush);
 
@@ -59,13 +60,16 @@ pub struct LossWeights {
     pub t_inside: f32,
 }
 
-/// The pixel-loss kernel and its partial-sum buffer.
+/// The pixel-loss kernel, its partial-sum buffer and the clamped image.
 pub struct PixelLoss {
     ctx: Context,
     kernel: Kernel,
     partials: GrowBuffer,
+    clamped: GrowBuffer,
     groups: u32,
     pixels: (u32, u32),
+    /// The last recorded frame's rgb was clamped (its image is in `clamped`).
+    clamped_last: bool,
 }
 
 impl PixelLoss {
@@ -74,14 +78,27 @@ impl PixelLoss {
             ctx: ctx.clone(),
             kernel: Kernel::new(ctx, &kernels::TRAIN_LOSS)?,
             partials: GrowBuffer::new("loss.partials"),
+            clamped: GrowBuffer::new("loss.clamped-rgb"),
             groups: 0,
             pixels: (0, 0),
+            clamped_last: false,
         })
+    }
+
+    /// The clamped rgb of the last frame recorded with `clamp_rgb` (planar `[3][H][W]`
+    /// f32 at output resolution), the image SSIM compares then.
+    pub fn clamped_rgb(&self) -> Option<&Buffer> {
+        self.clamped_last.then(|| self.clamped.get())
     }
 
     /// Records the losses of `frame` (its output image at `out_img`, planar
     /// [`crate::raster::CHANNELS`]) against `gt` (planar rgb at output resolution) into
-    /// `dout` with the weights `w` ([`LossWeights`]). Ends with a barrier.
+    /// `dout` with the weights `w` ([`LossWeights`]). With `clamp_rgb` the rgb losses
+    /// are those of clamp(rgb, 0, 1), as SVRaster trains (its `renderer.py` clamps the
+    /// output before the loss) and as eval measures: their gradient passes only where
+    /// rgb is in [0, 1], and the clamped image is kept for SSIM
+    /// ([`PixelLoss::clamped_rgb`]). Ends with a barrier.
+    #[allow(clippy::too_many_arguments)]
     pub fn record(
         &mut self,
         cmd: vk::CommandBuffer,
@@ -90,6 +107,7 @@ impl PixelLoss {
         gt: u64,
         dout: u64,
         w: LossWeights,
+        clamp_rgb: bool,
     ) -> Result<()> {
         let nout = frame.out_width * frame.out_height;
         let nrender = frame.render_width * frame.render_height;
@@ -97,6 +115,9 @@ impl PixelLoss {
         let groups = self.kernel.groups_1d(items);
         let need = groups as u64 * PARTIALS as u64 * 4;
         self.partials.ensure(&self.ctx, need)?;
+        if clamp_rgb {
+            self.clamped.ensure(&self.ctx, 3 * nout as u64 * 4)?;
+        }
         self.kernel.dispatch_1d(
             cmd,
             &LossPush {
@@ -110,11 +131,13 @@ impl PixelLoss {
                 nout,
                 nrender,
                 w_tin: w.t_inside / nout as f32,
-                pad: 0,
+                clamp_rgb: u32::from(clamp_rgb),
+                clamped: if clamp_rgb { self.clamped.address() } else { 0 },
             },
             items,
         );
         recorder::barrier(&self.ctx, cmd);
+        self.clamped_last = clamp_rgb;
         self.groups = groups;
         self.pixels = (nout, nrender);
         Ok(())

@@ -110,6 +110,7 @@ struct GradPush {
     scale: f32,
     pad: u32,
     gauss: [f32; 12],
+    pass_if: u64,
 }
 push_constants!(TRAIN_SSIM_GRAD, GradPush);
 
@@ -200,6 +201,45 @@ impl Ssim {
         width: u32,
         height: u32,
     ) -> Result<()> {
+        self.record_with(cmd, x, y, grad, weight, width, height, 0)
+    }
+
+    /// As [`Ssim::record`] for `x` = clamp(`raw`, 0, 1) (both device addresses of planar
+    /// `[3][H][W]` f32): the gradient added to `grad` is w.r.t. `raw`, so it passes only
+    /// where `raw` is in [0, 1] (the clamp's derivative; SVRaster's loss on its clamped
+    /// output).
+    #[allow(clippy::too_many_arguments)]
+    pub fn record_clamped(
+        &self,
+        cmd: vk::CommandBuffer,
+        x: u64,
+        raw: u64,
+        y: u64,
+        grad: u64,
+        weight: f32,
+        width: u32,
+        height: u32,
+    ) -> Result<()> {
+        if raw == 0 {
+            return Err(Error::Invalid(
+                "Ssim::record_clamped needs the unclamped image".into(),
+            ));
+        }
+        self.record_with(cmd, x, y, grad, weight, width, height, raw)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn record_with(
+        &self,
+        cmd: vk::CommandBuffer,
+        x: u64,
+        y: u64,
+        grad: u64,
+        weight: f32,
+        width: u32,
+        height: u32,
+        pass_if: u64,
+    ) -> Result<()> {
         let pixels = check_dims(width, height)?;
         let scratch = match &self.scratch {
             Some(s) if s.pixels >= pixels => s,
@@ -268,6 +308,7 @@ impl Ssim {
                 scale: (weight as f64 / m as f64) as f32,
                 pad: 0,
                 gauss,
+                pass_if,
             },
             grid,
         );

@@ -58,21 +58,34 @@ impl Trainer {
                 t_concentration: cfg.lambda_t,
                 t_inside: cfg.lambda_t_inside,
             },
+            cfg.clamp_rgb_loss,
         )?;
         if w.nmed > 0.0 || w.nmean > 0.0 {
             self.normal
                 .record(cmd, cam, out_addr, dout_addr, w.nmed, w.nmean)?;
         }
         if cfg.lambda_ssim > 0.0 {
-            self.ssim.record(
-                cmd,
-                out_addr,
-                gt_addr,
-                dout_addr,
-                -cfg.lambda_ssim,
-                frame.out_width,
-                frame.out_height,
-            )?;
+            match self.loss.clamped_rgb() {
+                Some(clamped) => self.ssim.record_clamped(
+                    cmd,
+                    clamped.address(),
+                    out_addr,
+                    gt_addr,
+                    dout_addr,
+                    -cfg.lambda_ssim,
+                    frame.out_width,
+                    frame.out_height,
+                )?,
+                None => self.ssim.record(
+                    cmd,
+                    out_addr,
+                    gt_addr,
+                    dout_addr,
+                    -cfg.lambda_ssim,
+                    frame.out_width,
+                    frame.out_height,
+                )?,
+            }
         }
         if let Some(t) = timing.as_mut() {
             t.1.mark(cmd, "losses");

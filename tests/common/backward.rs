@@ -183,6 +183,9 @@ pub fn gpu_grads_segmented(
     if spec.colour_straight {
         b.set_colour_clamp_grad(ClampGrad::Straight);
     }
+    if spec.alpha_straight {
+        b.set_alpha_clamp_grad(ClampGrad::Straight);
+    }
     if let Some(c) = chunk {
         b.set_chunk_size(c);
         b.set_gather_span(c);

@@ -27,7 +27,8 @@
 //! # Derivative conventions (at the branch points of the forward)
 //! * `α = min(MAX_ALPHA, 1 − exp(−vol))` has zero derivative w.r.t. `vol` when clamped
 //!   (`1 − exp(−vol) > MAX_ALPHA`); otherwise `dα/dvol = exp(−vol)`. The same holds for
-//!   the per-sample local alphas of the K > 1 depth.
+//!   the per-sample local alphas of the K > 1 depth. With `LossSpec::alpha_straight`
+//!   the derivative is `exp(−vol)` either way (SVRaster's rule).
 //! * Skipped hits (α < MIN_ALPHA) and hits after early termination do not enter the
 //!   loss at all: no gradient, no priority. The skip/stop decisions are not
 //!   differentiated (they are discontinuities).
@@ -89,6 +90,10 @@ pub struct LossSpec {
     /// backward) instead of the clamp's derivative. Not the gradient of the loss where a
     /// colour is clamped: no finite-difference check applies there.
     pub colour_straight: bool,
+    /// The density gradient passes the α clamp min(MAX_ALPHA, ·) straight through
+    /// (dα/dvol = exp(−vol) also where clamped, and likewise the K > 1 depth's local
+    /// alphas: SVRaster's backward). Not the gradient of the loss there.
+    pub alpha_straight: bool,
 }
 
 impl LossSpec {
@@ -649,7 +654,7 @@ fn backward_pixel(
         acc = c.alpha * g[j] + dd * c.dval + (1.0 - c.alpha) * acc;
 
         // α → vol → every local volume.
-        let dl_dvol = if c.alpha_clamped {
+        let dl_dvol = if c.alpha_clamped && !spec.alpha_straight {
             0.0
         } else {
             dl_dalpha * (-c.vol).exp()
@@ -669,7 +674,7 @@ fn backward_pixel(
                 let smp = &c.samples[s];
                 let dla = dl_ddval * tr[s] * (smp.t - e);
                 e = smp.la * smp.t + (1.0 - smp.la) * e;
-                if !smp.la_clamped {
+                if !smp.la_clamped || spec.alpha_straight {
                     dl_dlv[s] += dla * (-smp.lv).exp();
                 }
             }

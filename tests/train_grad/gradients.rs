@@ -29,6 +29,7 @@ fn optional_outputs_off_give_the_same_gradients() {
         lambda_r_colour: 0.0,
         dist_contracted: false,
         colour_straight: false,
+        alpha_straight: false,
     };
     let a = gpu_grads_with(
         &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, on,
@@ -65,6 +66,7 @@ fn optional_outputs_off_give_the_same_gradients() {
         lambda_r_colour: 0.0,
         dist_contracted: false,
         colour_straight: false,
+        alpha_straight: false,
     };
     // Distortion without normals (the no-normal kernels with the distortion terms).
     let dist_only = FrameOutputs {
@@ -109,6 +111,7 @@ fn generic_walk_gradients_equal_the_8_lane_walk() {
             lambda_r_colour: 0.0,
             dist_contracted: false,
             colour_straight: false,
+            alpha_straight: false,
         };
         let red = Reduction::Ordered;
         let fast = gpu_grads_walk(&ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false);
@@ -164,6 +167,7 @@ fn backward_matches_reference_on_random_scenes() {
                 lambda_r_colour: 0.0,
                 dist_contracted: false,
                 colour_straight: false,
+                alpha_straight: false,
             };
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
             for red in reductions(&ctx) {
@@ -214,6 +218,7 @@ fn each_loss_term_alone_and_small_chunks() {
             lambda_r_colour: if term == 7 { 0.8 } else { 0.0 },
             dist_contracted: term == 8,
             colour_straight: false,
+            alpha_straight: false,
         };
         for k in 1..=3u32 {
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
@@ -270,6 +275,7 @@ fn segmented_frame_gradients_match_reference() {
             lambda_r_colour: 0.3,
             dist_contracted: seg == 3,
             colour_straight: false,
+            alpha_straight: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -323,6 +329,7 @@ fn one_segment_per_tile_gives_the_unsegmented_gradients() {
         lambda_r_colour: 0.0,
         dist_contracted: false,
         colour_straight: false,
+        alpha_straight: false,
     };
     let all = FrameOutputs {
         normals: true,
@@ -397,6 +404,7 @@ fn long_tile_lists_at_the_default_chunk_size() {
         lambda_r_colour: 0.0,
         dist_contracted: false,
         colour_straight: false,
+        alpha_straight: false,
     };
     let reference = grads(&scene, &cam, 1, &pix, &spec);
     let hit = reference.priority.iter().filter(|&&p| p > 0.0).count();
@@ -453,6 +461,7 @@ fn sparse_tiles_backward_matches_reference() {
             lambda_r_colour: 0.0,
             dist_contracted: false,
             colour_straight: false,
+            alpha_straight: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -513,6 +522,7 @@ fn near_opaque_voxels_backward_matches_reference() {
             lambda_r_colour: 0.0,
             dist_contracted: false,
             colour_straight: false,
+            alpha_straight: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -569,6 +579,7 @@ fn contracted_distortion_matches_reference_across_distance_one() {
             lambda_r_colour: 0.0,
             dist_contracted: true,
             colour_straight: false,
+            alpha_straight: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         // The contraction changes the gradients (the test sees it).
@@ -580,6 +591,7 @@ fn contracted_distortion_matches_reference_across_distance_one() {
             &LossSpec {
                 dist_contracted: false,
                 colour_straight: false,
+                alpha_straight: false,
                 ..spec
             },
         );
@@ -643,6 +655,7 @@ fn frame_mean_background_gradients_match_reference() {
             lambda_r_colour: 0.0,
             dist_contracted: false,
             colour_straight: false,
+            alpha_straight: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         // The frame mean changes the gradients (the test sees it).
@@ -752,6 +765,7 @@ fn colour_clamp_straight_through_matches_reference() {
             lambda_r_colour: 0.3,
             dist_contracted: false,
             colour_straight: straight,
+            alpha_straight: false,
         };
         let reference = grads(&scene, &cam, 2, &pix, &spec);
         for red in reductions(&ctx) {
@@ -793,5 +807,102 @@ fn colour_clamp_straight_through_matches_reference() {
         0,
         "the clamp rule changed a priority"
     );
+    finish(&ctx);
+}
+
+/// `alpha_clamp_grad = straight` (SVRaster's backward: dα/dvol = exp(−vol) also where
+/// α = min(MAX_ALPHA, ·) clamps) against the f64 reference with the same rule, K = 1
+/// and K = 2 (the depth's local alphas clamp on their own), every reduction; both rules
+/// checked, and the scene dense enough that many entries clamp. The rule changes
+/// density gradients only: the SH gradients and priorities of both rules are equal.
+#[test]
+fn alpha_clamp_straight_through_matches_reference() {
+    let ctx = context();
+    let mut rng = Rng(0x6a4d_0c1b);
+    let mut scene = random_scene(&mut rng, 6, 1);
+    for g in scene.geo.iter_mut() {
+        *g = (rng.range(-4.0, 4.0)) as f32;
+    }
+    let mut cam = camera_outside(&mut rng, &scene, 31, 22);
+    while ambiguous(&scene, &cam, 2) || ambiguous(&scene, &cam, 1) {
+        cam = camera_outside(&mut rng, &scene, 31, 22);
+    }
+    let np = (cam.width * cam.height) as usize;
+    let pix = random_weights(&mut rng, np, [true, true, true, false, false]);
+    let mut worst = [0.0f64; 4];
+    for k in [1u32, 2] {
+        let mut refs = Vec::new();
+        let mut ordered = Vec::new();
+        for straight in [false, true] {
+            let spec = LossSpec {
+                lambda_dist: 0.0,
+                lambda_r: 0.5,
+                lambda_r_colour: 0.0,
+                dist_contracted: false,
+                colour_straight: false,
+                alpha_straight: straight,
+            };
+            let reference = grads(&scene, &cam, k as usize, &pix, &spec);
+            for red in reductions(&ctx) {
+                let g = gpu_grads(&ctx, &scene, &cam, k, &pix, &spec, red, None);
+                compare(
+                    &format!("K {k} straight {straight} {red:?}"),
+                    &g,
+                    &reference,
+                    &mut worst,
+                );
+                if red == Reduction::Ordered {
+                    ordered.push(g.geo);
+                }
+            }
+            refs.push(reference);
+        }
+        let (m, s) = (&refs[0], &refs[1]);
+        let differ = |a: &[f64], b: &[f64]| {
+            a.iter()
+                .zip(b)
+                .filter(|(x, y)| (*x - *y).abs() > 1e-9 * (1.0 + x.abs()))
+                .count()
+        };
+        // What passes the clamp is at most 1e-5 of ∂L/∂α, below the comparisons' f32
+        // tolerance: so the rule's own part is compared on its own. The ordered
+        // reduction sums every other term in the same order under both rules, so the
+        // difference of its two results is the clamped entries' gradient (to the
+        // rounding of the sums).
+        let d_gpu: Vec<f32> = ordered[1]
+            .iter()
+            .zip(&ordered[0])
+            .map(|(a, b)| a - b)
+            .collect();
+        let d_ref: Vec<f64> = s.geo.iter().zip(&m.geo).map(|(a, b)| a - b).collect();
+        let e_diff = rel_err(&d_gpu, &d_ref);
+        println!("K {k}: the straight-through part, relative error {e_diff:.2e}");
+        assert!(
+            e_diff <= 0.02,
+            "K {k}: straight-through part relative error {e_diff:e}"
+        );
+        let sh0 = |r: &RefGrads| r.sh0.iter().flatten().copied().collect::<Vec<f64>>();
+        let d_geo = differ(&m.geo, &s.geo);
+        println!(
+            "K {k}: {d_geo} of {} density gradients differ between the rules; worst \
+             relative errors: geo {:.2e} sh0 {:.2e} shs {:.2e} priority {:.2e}",
+            m.geo.len(),
+            worst[0],
+            worst[1],
+            worst[2],
+            worst[3]
+        );
+        assert!(d_geo >= 10, "too few clamped alphas seen ({d_geo} differ)");
+        assert_eq!(
+            differ(&sh0(m), &sh0(s)),
+            0,
+            "the rule changed a colour gradient"
+        );
+        assert_eq!(
+            differ(&m.priority, &s.priority),
+            0,
+            "the rule changed a priority"
+        );
+    }
     finish(&ctx);
 }

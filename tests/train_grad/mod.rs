@@ -7,7 +7,7 @@ use crate::common;
 
 use common::backward::{
     ambiguous, compare, compare_within, default_reduction, gpu_grads, gpu_grads_segmented,
-    gpu_grads_ss, gpu_grads_walk, gpu_grads_with, random_weights, reductions,
+    gpu_grads_ss, gpu_grads_walk, gpu_grads_with, random_weights, reductions, rel_err,
 };
 use common::reference_grad::{grads, LossSpec, PixelWeights, RefGrads};
 use common::{camera_inside, camera_outside, context, finish, random_scene, scattered_scene, Rng};

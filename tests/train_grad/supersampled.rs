@@ -13,6 +13,7 @@ fn gradients_stay_finite_at_the_extremes() {
             lambda_r_colour: 0.0,
             dist_contracted: false,
             colour_straight: false,
+            alpha_straight: false,
         };
         for red in reductions(&ctx) {
             let g = gpu_grads(&ctx, scene, cam, k, &pix, &spec, red, None);
@@ -98,6 +99,7 @@ fn supersampled_backward_matches_reference_at_render_resolution() {
             lambda_r_colour: 0.0,
             dist_contracted: false,
             colour_straight: false,
+            alpha_straight: false,
         };
         let rpix = transpose_downsample(&pix, cam.width, cam.height, rw, rh);
         let reference = grads(&scene, &cam.resized(rw, rh), 1, &rpix, &spec);

@@ -120,7 +120,7 @@ impl Backward {
             point_list: points.map_or(0, |p| p.list.address()),
             gather_span: self.gather_span,
             colour_straight: u32::from(self.clamp_grad == ClampGrad::Straight),
-            pad2: 0,
+            alpha_straight: u32::from(self.alpha_clamp_grad == ClampGrad::Straight),
             pad3: 0,
         };
         let dev = ctx.device();
