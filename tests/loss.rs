@@ -223,6 +223,9 @@ fn pixel_losses_match_the_f64_reference() {
                     dist_contracted: false,
                     colour_straight: false,
                     alpha_straight: false,
+                    lambda_t: 0.0,
+                    lambda_t_inside: 0.0,
+                    r_target_bilinear: false,
                 },
                 None,
             );

@@ -330,6 +330,9 @@ fn gradients_match_the_reference_on_drawn_scenes() {
                 dist_contracted: false,
                 colour_straight: false,
                 alpha_straight: false,
+                lambda_t: 0.0,
+                lambda_t_inside: 0.0,
+                r_target_bilinear: false,
             }
         } else {
             LossSpec {
@@ -339,6 +342,9 @@ fn gradients_match_the_reference_on_drawn_scenes() {
                 dist_contracted: false,
                 colour_straight: false,
                 alpha_straight: false,
+                lambda_t: 0.0,
+                lambda_t_inside: 0.0,
+                r_target_bilinear: false,
             }
         };
         {

@@ -27,7 +27,7 @@ use common::reference::{self, render_pixel, voxel_rgb};
 use common::reference_grad::{
     evaluate, grads, grads_with, loss, pixel_rays, AlphaNudge, LossSpec, Params, PixelRay,
     PixelWeights, RefGrads, NUM_TERMS, TERM_ALPHA, TERM_DEPTH, TERM_DIST, TERM_NAMES, TERM_NORMAL,
-    TERM_POINT_RGB, TERM_RGB,
+    TERM_POINT_RGB, TERM_RGB, TERM_T,
 };
 use common::{camera_inside, Rng};
 use svraster::data::Camera;
@@ -179,6 +179,9 @@ fn random_spec(rng: &mut Rng) -> LossSpec {
         dist_contracted: false,
         colour_straight: false,
         alpha_straight: false,
+        lambda_t: rng.range(0.2, 2.0),
+        lambda_t_inside: rng.range(0.2, 2.0),
+        r_target_bilinear: false,
     }
 }
 
@@ -210,6 +213,13 @@ fn only_term(pix: &[PixelWeights], spec: &LossSpec, t: usize) -> (Vec<PixelWeigh
         dist_contracted: spec.dist_contracted,
         colour_straight: spec.colour_straight,
         alpha_straight: spec.alpha_straight,
+        lambda_t: if t == TERM_T { spec.lambda_t } else { 0.0 },
+        lambda_t_inside: if t == TERM_T {
+            spec.lambda_t_inside
+        } else {
+            0.0
+        },
+        r_target_bilinear: false,
     };
     (pix, spec)
 }
@@ -604,6 +614,9 @@ fn colour_only_point_rgb_matches_finite_differences_on_the_colours() {
             dist_contracted: false,
             colour_straight: false,
             alpha_straight: false,
+            lambda_t: 0.0,
+            lambda_t_inside: 0.0,
+            r_target_bilinear: false,
         };
         let an = grads_with(&c.scene, &params, &rays, c.k, &pix, &colour_only);
         assert!(
@@ -624,6 +637,9 @@ fn colour_only_point_rgb_matches_finite_differences_on_the_colours() {
                 dist_contracted: false,
                 colour_straight: false,
                 alpha_straight: false,
+                lambda_t: 0.0,
+                lambda_t_inside: 0.0,
+                r_target_bilinear: false,
             },
         };
         let base = evaluate(
@@ -682,9 +698,11 @@ fn priority_matches_alpha_finite_differences() {
         for (p, cs) in base.contributors.iter().enumerate() {
             for (e, ctb) in cs.iter().enumerate() {
                 entries += 1;
-                // L_p is a quadratic in one alpha value while no branch changes, so the
-                // central difference is exact up to rounding: start with a large step,
-                // shrink it while it changes a branch (an early stop).
+                // L_p is a polynomial of degree ≤ 4 in one alpha value while no branch
+                // changes (quadratic, and T²(1−T)² of the transmittance terms), so
+                // Richardson's extrapolation of two central differences (steps δ and
+                // δ/2) is exact up to rounding: start with a large step, shrink it while
+                // it changes a branch (an early stop).
                 let mut delta = 1e-4;
                 let mut dl_dalpha = None;
                 for _ in 0..6 {
@@ -696,10 +714,11 @@ fn priority_matches_alpha_finite_differences() {
                         };
                         evaluate(&scene, &params, &rays, k, &pix, &spec, Some(nudge))
                     };
-                    let (plus, minus) = (ev(delta), ev(-delta));
-                    if plus.signature == base.signature && minus.signature == base.signature {
-                        let d = (plus.pixel_loss[p] - minus.pixel_loss[p]) / (2.0 * delta);
-                        dl_dalpha = Some(d);
+                    let evals = [ev(delta), ev(-delta), ev(0.5 * delta), ev(-0.5 * delta)];
+                    if evals.iter().all(|e| e.signature == base.signature) {
+                        let d1 = (evals[0].pixel_loss[p] - evals[1].pixel_loss[p]) / (2.0 * delta);
+                        let d2 = (evals[2].pixel_loss[p] - evals[3].pixel_loss[p]) / delta;
+                        dl_dalpha = Some((4.0 * d2 - d1) / 3.0);
                         break;
                     }
                     delta *= 0.1;

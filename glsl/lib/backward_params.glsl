@@ -31,7 +31,16 @@ layout(buffer_reference, std430, buffer_reference_align = 16) buffer BackParams 
     uint gather_span; // records a voxel sums per records_gather pass
     uint colour_straight; // 1: ∂L/∂rgb passes max(0, ·) straight through (SVRaster's)
     uint alpha_straight;  // 1: ∂L/∂α passes min(MAX_ALPHA, ·) straight through (SVRaster's)
-    uint pad3;
+    // Transmittance losses on the render-resolution T (SVRaster's raw_T), per render
+    // pixel: concentration T²(1−T)² and inside T² weights (0: none here; loss.comp has
+    // the output-resolution forms)
+    float lambda_t;
+    float lambda_t_inside;
+    uint r_bilinear;  // 1: the per-point RGB target is the photo bilinearly resized to
+                      // render resolution (SVRaster's resize_rendering), else the output
+                      // pixel containing the render pixel's centre
+    uint pad4;
+    uint pad5;
 };
 
 // dout: gradients w.r.t. the frame's outputs at output resolution (rgb with background,

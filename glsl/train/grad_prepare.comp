@@ -3,8 +3,12 @@
 // Per render pixel: the transpose of the frame's anti-aliasing downsample (tent filter
 // normalised per output pixel, exactly raster/downsample.comp) applied to the output
 // gradients, then the transpose of finalize: rgb = C + T·bg and alpha = 1 - T give
-// ∂L/∂C = ∂L/∂rgb and ∂L/∂T = bg·∂L/∂rgb - ∂L/∂alpha. The ground truth for the
-// per-point RGB loss is the output pixel containing the render pixel's centre.
+// ∂L/∂C = ∂L/∂rgb and ∂L/∂T = bg·∂L/∂rgb - ∂L/∂alpha, plus the transmittance losses
+// taken at render resolution (SVRaster's raw_T: back.lambda_t, back.lambda_t_inside) on
+// the frame's exact final T. The ground truth for the per-point RGB loss is the output
+// pixel containing the render pixel's centre, or with back.r_bilinear the photo's
+// bilinear interpolation there (torch's interpolate, align_corners=False, as
+// SVRaster's resize_rendering; identical to its antialiased form when enlarging).
 #include "raster_params.glsl"
 #include "backward_params.glsl"
 layout(local_size_x = 256) in;
@@ -70,10 +74,30 @@ void main() {
     // the gradient that flows through m into every pixel's C is added afterwards
     // (frame_mean.comp, FM_SUM_TGRAD → FM_TOTAL → FM_APPLY).
     vec3 bg = frame_background(P);
-    B.dimg.v[DI_T * npix + p] = dot(bg, drgb) - acc[DO_ALPHA];
+    float dT = dot(bg, drgb) - acc[DO_ALPHA];
+    if (B.lambda_t != 0.0 || B.lambda_t_inside != 0.0) {
+        float T = P.aux.v[AUX_T * npix + p];
+        dT += B.lambda_t * 2.0 * T * (1.0 - T) * (1.0 - 2.0 * T) + B.lambda_t_inside * 2.0 * T;
+    }
+    B.dimg.v[DI_T * npix + p] = dT;
     B.dimg.v[DI_DEPTH * npix + p] = acc[DO_DEPTH];
     B.dimg.v[DI_NX * npix + p] = acc[DO_NX];
     B.dimg.v[DI_NY * npix + p] = acc[DO_NY];
     B.dimg.v[DI_NZ * npix + p] = acc[DO_NZ];
-    for (uint c = 0u; c < 3u; ++c) B.dimg.v[(DI_GTR + c) * npix + p] = B.dout.v[(DO_GTR + c) * nout + qgt];
+    if (B.r_bilinear != 0u && P.supersampled != 0u) {
+        // Source position in output pixels, clamped at the first pixel's centre; the
+        // upper neighbour clamped to the last pixel.
+        vec2 src = max((vec2(pix) + 0.5) / P.ss_scale - 0.5, vec2(0.0));
+        uvec2 i0 = min(uvec2(src), uvec2(OW, OH) - 1u);
+        uvec2 i1 = min(i0 + 1u, uvec2(OW, OH) - 1u);
+        vec2 f = src - vec2(i0);
+        for (uint c = 0u; c < 3u; ++c) {
+            uint base = (DO_GTR + c) * nout;
+            float top = mix(B.dout.v[base + i0.y * OW + i0.x], B.dout.v[base + i0.y * OW + i1.x], f.x);
+            float bot = mix(B.dout.v[base + i1.y * OW + i0.x], B.dout.v[base + i1.y * OW + i1.x], f.x);
+            B.dimg.v[(DI_GTR + c) * npix + p] = mix(top, bot, f.y);
+        }
+    } else {
+        for (uint c = 0u; c < 3u; ++c) B.dimg.v[(DI_GTR + c) * npix + p] = B.dout.v[(DO_GTR + c) * nout + qgt];
+    }
 }

@@ -177,6 +177,7 @@ impl Fuser {
             lambda_dist: 0.0,
             lambda_r: 0.0,
             lambda_r_colour: 0.0,
+            ..EntryLosses::default()
         };
         ctx.submit_and_wait(|cmd| {
             for pass in 0..planes.div_ceil(3) {

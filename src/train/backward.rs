@@ -258,6 +258,17 @@ pub struct EntryLosses {
     /// λ·Σ_k w_k |c_k − gt|² with the blending weights w_k held constant, so its only
     /// gradient is 2λ·w_k·(c_k − gt) on the colours (no opacity, no priority).
     pub lambda_r_colour: f32,
+    /// Transmittance concentration T²(1−T)² on the render-resolution final
+    /// transmittance, per render pixel (SVRaster's `prob_concen_loss(raw_T)`; the
+    /// output-resolution form is [`super::loss::PixelLoss`]'s).
+    pub lambda_t: f32,
+    /// The inside term T² on the render-resolution transmittance, per render pixel
+    /// (SVRaster's `raw_T.square().mean()`).
+    pub lambda_t_inside: f32,
+    /// The per-point RGB target at render resolution: the photo bilinearly resized
+    /// (SVRaster's `resize_rendering`), instead of the photo pixel containing the render
+    /// pixel's centre. Only differs on supersampled frames.
+    pub r_target_bilinear: bool,
 }
 
 /// Mirror of `BackParams` in glsl/lib/backward_params.glsl (checked by `gpu_layout!`).
@@ -291,7 +302,12 @@ struct BackParams {
     /// 1: the density gradient passes the α clamp straight through
     /// (`alpha_clamp_grad` = [`ClampGrad::Straight`]).
     alpha_straight: u32,
-    pad3: u32,
+    lambda_t: f32,
+    lambda_t_inside: f32,
+    /// 1: the per-point RGB target is the photo bilinearly resized.
+    r_bilinear: u32,
+    pad4: u32,
+    pad5: u32,
 }
 gpu_layout!(BackParams, BackParams);
 

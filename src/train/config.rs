@@ -170,6 +170,16 @@ pub struct TrainConfig {
     /// brighter than 1 (or below 0) costs nothing more and passes no rgb gradient.
     /// Off: the losses see the raw output (docs/PARITY.md item 10).
     pub clamp_rgb_loss: bool,
+    /// The transmittance losses (`lambda_t` concentration, `lambda_t_inside`) on the
+    /// render-resolution transmittance, mean over render pixels, as SVRaster
+    /// (`prob_concen_loss(raw_T)`, train.py:259-262), instead of on the output alpha
+    /// after the downsample (off; docs/PARITY.md item 10). The logged values stay the
+    /// output-resolution ones.
+    pub t_losses_at_render: bool,
+    /// The per-point RGB loss's target at render resolution: the photo bilinearly
+    /// resized, as SVRaster (`resize_rendering`, renderer.py:117-118), instead of the
+    /// photo pixel containing the render pixel's centre (off; docs/PARITY.md item 10).
+    pub r_target_bilinear: bool,
     pub lambda_tv: f32,
     pub tv_until: f64,
     /// The TV penalty's form: "l2" (ours: Σ Δ² over the cube edges, zero gradient on
@@ -292,6 +302,8 @@ impl Default for TrainConfig {
             colour_clamp_grad: ClampGrad::Masked,
             alpha_clamp_grad: ClampGrad::Masked,
             clamp_rgb_loss: false,
+            t_losses_at_render: false,
+            r_target_bilinear: false,
             lambda_tv: 1e-10,
             tv_until: 0.5,
             tv_form: TvForm::L2,

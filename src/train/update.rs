@@ -40,6 +40,7 @@ impl Trainer {
         }
         self.backward.prepare(&frame, self.scene.voxels)?;
         let nrender = frame.render_width * frame.render_height;
+        let t_render = cfg.t_losses_at_render;
         self.ssim.prepare(frame.out_width, frame.out_height)?;
         let gt_addr = self.views.address(view);
         let out_addr = self.renderer.output_address()?;
@@ -55,8 +56,10 @@ impl Trainer {
             dout_addr,
             LossWeights {
                 mse: cfg.lambda_mse,
-                t_concentration: cfg.lambda_t,
-                t_inside: cfg.lambda_t_inside,
+                // At render resolution the backward applies them (grad_prepare.comp);
+                // the output-resolution sums are still logged.
+                t_concentration: if t_render { 0.0 } else { cfg.lambda_t },
+                t_inside: if t_render { 0.0 } else { cfg.lambda_t_inside },
             },
             cfg.clamp_rgb_loss,
         )?;
@@ -104,6 +107,17 @@ impl Trainer {
                 lambda_dist: w.dist / nrender as f32,
                 lambda_r: cfg.lambda_r / nrender as f32,
                 lambda_r_colour: cfg.lambda_r_colour / nrender as f32,
+                lambda_t: if t_render {
+                    cfg.lambda_t / nrender as f32
+                } else {
+                    0.0
+                },
+                lambda_t_inside: if t_render {
+                    cfg.lambda_t_inside / nrender as f32
+                } else {
+                    0.0
+                },
+                r_target_bilinear: cfg.r_target_bilinear,
             },
             timing.as_mut().map(|t| &mut t.1),
             |cmd, geo_target| {

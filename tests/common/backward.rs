@@ -216,6 +216,9 @@ pub fn gpu_grads_segmented(
                 lambda_dist: spec.lambda_dist as f32,
                 lambda_r: spec.lambda_r as f32,
                 lambda_r_colour: spec.lambda_r_colour as f32,
+                lambda_t: spec.lambda_t as f32,
+                lambda_t_inside: spec.lambda_t_inside as f32,
+                r_target_bilinear: spec.r_target_bilinear,
             },
         )
     })?;

@@ -94,6 +94,15 @@ pub struct LossSpec {
     /// (dα/dvol = exp(−vol) also where clamped, and likewise the K > 1 depth's local
     /// alphas: SVRaster's backward). Not the gradient of the loss there.
     pub alpha_straight: bool,
+    /// Transmittance concentration λ·T²(1−T)² on each pixel's final transmittance (the
+    /// evaluated resolution's: SVRaster's `raw_T`).
+    pub lambda_t: f64,
+    /// The inside term λ·T² on each pixel's final transmittance.
+    pub lambda_t_inside: f64,
+    /// For the GPU backward only: the per-point RGB target at render resolution is the
+    /// photo's bilinear resize (`EntryLosses::r_target_bilinear`). The reference takes
+    /// each pixel's target from its `PixelWeights::gt`, which a test fills to match.
+    pub r_target_bilinear: bool,
 }
 
 impl LossSpec {
@@ -148,8 +157,17 @@ pub const TERM_DEPTH: usize = 2;
 pub const TERM_NORMAL: usize = 3;
 pub const TERM_DIST: usize = 4;
 pub const TERM_POINT_RGB: usize = 5;
-pub const NUM_TERMS: usize = 6;
-pub const TERM_NAMES: [&str; NUM_TERMS] = ["rgb", "alpha", "depth", "normal", "dist", "point_rgb"];
+pub const TERM_T: usize = 6;
+pub const NUM_TERMS: usize = 7;
+pub const TERM_NAMES: [&str; NUM_TERMS] = [
+    "rgb",
+    "alpha",
+    "depth",
+    "normal",
+    "dist",
+    "point_rgb",
+    "transmittance",
+];
 
 /// One contributor of a pixel (after skipping and early termination), in compositing
 /// order.
@@ -576,6 +594,7 @@ fn forward_pixel(
     terms[TERM_NORMAL] = dot(pw.normal, out_normal);
     terms[TERM_DIST] = spec.lambda_dist * dist;
     terms[TERM_POINT_RGB] = spec.lambda_r * point_rgb;
+    terms[TERM_T] = spec.lambda_t * (t * (1.0 - t)).powi(2) + spec.lambda_t_inside * t * t;
     PixelForward {
         contribs,
         terms,
@@ -643,7 +662,11 @@ fn backward_pixel(
     }
 
     let dd = pw.depth / ray.norm; // ∂L/∂(T_k dval_k)
-    let mut acc = dot(pw.rgb, bg) - pw.alpha; // A_{k+1}
+                                  // A_{N+1} = ∂L/∂T_final, with the transmittance terms' derivative.
+    let tf = f.t_final;
+    let mut acc = dot(pw.rgb, bg) - pw.alpha
+        + spec.lambda_t * 2.0 * tf * (1.0 - tf) * (1.0 - 2.0 * tf)
+        + spec.lambda_t_inside * 2.0 * tf; // A_{k+1}
     for j in (0..n).rev() {
         let c = &cs[j];
         let i = c.voxel;

@@ -30,6 +30,9 @@ fn optional_outputs_off_give_the_same_gradients() {
         dist_contracted: false,
         colour_straight: false,
         alpha_straight: false,
+        lambda_t: 0.0,
+        lambda_t_inside: 0.0,
+        r_target_bilinear: false,
     };
     let a = gpu_grads_with(
         &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, on,
@@ -67,6 +70,9 @@ fn optional_outputs_off_give_the_same_gradients() {
         dist_contracted: false,
         colour_straight: false,
         alpha_straight: false,
+        lambda_t: 0.0,
+        lambda_t_inside: 0.0,
+        r_target_bilinear: false,
     };
     // Distortion without normals (the no-normal kernels with the distortion terms).
     let dist_only = FrameOutputs {
@@ -112,6 +118,9 @@ fn generic_walk_gradients_equal_the_8_lane_walk() {
             dist_contracted: false,
             colour_straight: false,
             alpha_straight: false,
+            lambda_t: 0.0,
+            lambda_t_inside: 0.0,
+            r_target_bilinear: false,
         };
         let red = Reduction::Ordered;
         let fast = gpu_grads_walk(&ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false);
@@ -168,6 +177,9 @@ fn backward_matches_reference_on_random_scenes() {
                 dist_contracted: false,
                 colour_straight: false,
                 alpha_straight: false,
+                lambda_t: 0.0,
+                lambda_t_inside: 0.0,
+                r_target_bilinear: false,
             };
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
             for red in reductions(&ctx) {
@@ -219,6 +231,9 @@ fn each_loss_term_alone_and_small_chunks() {
             dist_contracted: term == 8,
             colour_straight: false,
             alpha_straight: false,
+            lambda_t: 0.0,
+            lambda_t_inside: 0.0,
+            r_target_bilinear: false,
         };
         for k in 1..=3u32 {
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
@@ -276,6 +291,9 @@ fn segmented_frame_gradients_match_reference() {
             dist_contracted: seg == 3,
             colour_straight: false,
             alpha_straight: false,
+            lambda_t: 0.0,
+            lambda_t_inside: 0.0,
+            r_target_bilinear: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -330,6 +348,9 @@ fn one_segment_per_tile_gives_the_unsegmented_gradients() {
         dist_contracted: false,
         colour_straight: false,
         alpha_straight: false,
+        lambda_t: 0.0,
+        lambda_t_inside: 0.0,
+        r_target_bilinear: false,
     };
     let all = FrameOutputs {
         normals: true,
@@ -405,6 +426,9 @@ fn long_tile_lists_at_the_default_chunk_size() {
         dist_contracted: false,
         colour_straight: false,
         alpha_straight: false,
+        lambda_t: 0.0,
+        lambda_t_inside: 0.0,
+        r_target_bilinear: false,
     };
     let reference = grads(&scene, &cam, 1, &pix, &spec);
     let hit = reference.priority.iter().filter(|&&p| p > 0.0).count();
@@ -462,6 +486,9 @@ fn sparse_tiles_backward_matches_reference() {
             dist_contracted: false,
             colour_straight: false,
             alpha_straight: false,
+            lambda_t: 0.0,
+            lambda_t_inside: 0.0,
+            r_target_bilinear: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -523,6 +550,9 @@ fn near_opaque_voxels_backward_matches_reference() {
             dist_contracted: false,
             colour_straight: false,
             alpha_straight: false,
+            lambda_t: 0.0,
+            lambda_t_inside: 0.0,
+            r_target_bilinear: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -580,6 +610,9 @@ fn contracted_distortion_matches_reference_across_distance_one() {
             dist_contracted: true,
             colour_straight: false,
             alpha_straight: false,
+            lambda_t: 0.0,
+            lambda_t_inside: 0.0,
+            r_target_bilinear: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         // The contraction changes the gradients (the test sees it).
@@ -592,6 +625,9 @@ fn contracted_distortion_matches_reference_across_distance_one() {
                 dist_contracted: false,
                 colour_straight: false,
                 alpha_straight: false,
+                lambda_t: 0.0,
+                lambda_t_inside: 0.0,
+                r_target_bilinear: false,
                 ..spec
             },
         );
@@ -656,6 +692,9 @@ fn frame_mean_background_gradients_match_reference() {
             dist_contracted: false,
             colour_straight: false,
             alpha_straight: false,
+            lambda_t: 0.0,
+            lambda_t_inside: 0.0,
+            r_target_bilinear: false,
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         // The frame mean changes the gradients (the test sees it).
@@ -766,6 +805,9 @@ fn colour_clamp_straight_through_matches_reference() {
             dist_contracted: false,
             colour_straight: straight,
             alpha_straight: false,
+            lambda_t: 0.0,
+            lambda_t_inside: 0.0,
+            r_target_bilinear: false,
         };
         let reference = grads(&scene, &cam, 2, &pix, &spec);
         for red in reductions(&ctx) {
@@ -841,6 +883,9 @@ fn alpha_clamp_straight_through_matches_reference() {
                 dist_contracted: false,
                 colour_straight: false,
                 alpha_straight: straight,
+                lambda_t: 0.0,
+                lambda_t_inside: 0.0,
+                r_target_bilinear: false,
             };
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
             for red in reductions(&ctx) {

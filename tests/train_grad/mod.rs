@@ -97,5 +97,39 @@ fn transpose_downsample(
     out
 }
 
+/// The photo bilinearly resized to render resolution, into each render pixel's `gt`:
+/// torch's `interpolate(mode="bilinear", align_corners=False)` (SVRaster's
+/// `resize_rendering`; its antialiased form is the same when enlarging), in f64.
+fn upsample_gt_bilinear(
+    u: &[PixelWeights],
+    ow: u32,
+    oh: u32,
+    rpix: &mut [PixelWeights],
+    rw: u32,
+    rh: u32,
+) {
+    let (sx, sy) = (rw as f64 / ow as f64, rh as f64 / oh as f64);
+    // Source position along one axis: the two neighbours and the second one's weight.
+    let taps = |i: u32, s: f64, n: u32| {
+        let src = ((i as f64 + 0.5) / s - 0.5).max(0.0);
+        let i0 = (src.floor() as u32).min(n - 1);
+        let i1 = (i0 + 1).min(n - 1);
+        (i0, i1, src - i0 as f64)
+    };
+    for y in 0..rh {
+        let (y0, y1, fy) = taps(y, sy, oh);
+        for x in 0..rw {
+            let (x0, x1, fx) = taps(x, sx, ow);
+            let at = |xx: u32, yy: u32, c: usize| u[(yy * ow + xx) as usize].gt[c];
+            let p = &mut rpix[(y * rw + x) as usize];
+            for c in 0..3 {
+                let top = at(x0, y0, c) * (1.0 - fx) + at(x1, y0, c) * fx;
+                let bot = at(x0, y1, c) * (1.0 - fx) + at(x1, y1, c) * fx;
+                p.gt[c] = top * (1.0 - fy) + bot * fy;
+            }
+        }
+    }
+}
+
 mod gradients;
 mod supersampled;

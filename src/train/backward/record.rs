@@ -121,7 +121,11 @@ impl Backward {
             gather_span: self.gather_span,
             colour_straight: u32::from(self.clamp_grad == ClampGrad::Straight),
             alpha_straight: u32::from(self.alpha_clamp_grad == ClampGrad::Straight),
-            pad3: 0,
+            lambda_t: losses.lambda_t,
+            lambda_t_inside: losses.lambda_t_inside,
+            r_bilinear: u32::from(losses.r_target_bilinear),
+            pad4: 0,
+            pad5: 0,
         };
         let dev = ctx.device();
         unsafe {
