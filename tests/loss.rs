@@ -218,14 +218,7 @@ fn pixel_losses_match_the_f64_reference() {
                 &vec![PixelWeights::default(); np],
                 &LossSpec {
                     lambda_dist: 1.0,
-                    lambda_r: 0.0,
-                    lambda_r_colour: 0.0,
-                    dist_contracted: false,
-                    colour_straight: false,
-                    alpha_straight: false,
-                    lambda_t: 0.0,
-                    lambda_t_inside: 0.0,
-                    r_target_bilinear: false,
+                    ..Default::default()
                 },
                 None,
             );

@@ -323,28 +323,12 @@ fn gradients_match_the_reference_on_drawn_scenes() {
         excluded.set(excluded.get() + n_excluded);
         let spec = if n_excluded > 0 {
             limited.set(limited.get() + 1);
-            LossSpec {
-                lambda_dist: 0.0,
-                lambda_r: 0.0,
-                lambda_r_colour: 0.0,
-                dist_contracted: false,
-                colour_straight: false,
-                alpha_straight: false,
-                lambda_t: 0.0,
-                lambda_t_inside: 0.0,
-                r_target_bilinear: false,
-            }
+            LossSpec::default()
         } else {
             LossSpec {
                 lambda_dist: rng.range(0.1, 2.0),
                 lambda_r: rng.range(0.1, 2.0),
-                lambda_r_colour: 0.0,
-                dist_contracted: false,
-                colour_straight: false,
-                alpha_straight: false,
-                lambda_t: 0.0,
-                lambda_t_inside: 0.0,
-                r_target_bilinear: false,
+                ..Default::default()
             }
         };
         {

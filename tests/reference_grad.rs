@@ -175,13 +175,9 @@ fn random_spec(rng: &mut Rng) -> LossSpec {
     LossSpec {
         lambda_dist: rng.range(0.2, 2.0),
         lambda_r: rng.range(0.2, 2.0),
-        lambda_r_colour: 0.0,
-        dist_contracted: false,
-        colour_straight: false,
-        alpha_straight: false,
         lambda_t: rng.range(0.2, 2.0),
         lambda_t_inside: rng.range(0.2, 2.0),
-        r_target_bilinear: false,
+        ..Default::default()
     }
 }
 
@@ -608,15 +604,8 @@ fn colour_only_point_rgb_matches_finite_differences_on_the_colours() {
         let rays = pixel_rays(&c.scene, &c.cam);
         let (pix, _) = only_term(&c.pix, &c.spec, TERM_POINT_RGB);
         let colour_only = LossSpec {
-            lambda_dist: 0.0,
-            lambda_r: 0.0,
             lambda_r_colour: lc,
-            dist_contracted: false,
-            colour_straight: false,
-            alpha_straight: false,
-            lambda_t: 0.0,
-            lambda_t_inside: 0.0,
-            r_target_bilinear: false,
+            ..Default::default()
         };
         let an = grads_with(&c.scene, &params, &rays, c.k, &pix, &colour_only);
         assert!(
@@ -631,15 +620,8 @@ fn colour_only_point_rgb_matches_finite_differences_on_the_colours() {
             k: c.k,
             pix,
             spec: LossSpec {
-                lambda_dist: 0.0,
                 lambda_r: 3.0 * lc,
-                lambda_r_colour: 0.0,
-                dist_contracted: false,
-                colour_straight: false,
-                alpha_straight: false,
-                lambda_t: 0.0,
-                lambda_t_inside: 0.0,
-                r_target_bilinear: false,
+                ..Default::default()
             },
         };
         let base = evaluate(

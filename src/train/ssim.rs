@@ -228,8 +228,10 @@ impl Ssim {
         self.record_with(cmd, x, y, grad, weight, width, height, raw)
     }
 
+    /// [`Ssim::record`] when `pass_if` is 0; otherwise [`Ssim::record_clamped`] with
+    /// `pass_if` as the unclamped image.
     #[allow(clippy::too_many_arguments)]
-    fn record_with(
+    pub(crate) fn record_with(
         &self,
         cmd: vk::CommandBuffer,
         x: u64,

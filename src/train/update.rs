@@ -68,27 +68,22 @@ impl Trainer {
                 .record(cmd, cam, out_addr, dout_addr, w.nmed, w.nmean)?;
         }
         if cfg.lambda_ssim > 0.0 {
-            match self.loss.clamped_rgb() {
-                Some(clamped) => self.ssim.record_clamped(
-                    cmd,
-                    clamped.address(),
-                    out_addr,
-                    gt_addr,
-                    dout_addr,
-                    -cfg.lambda_ssim,
-                    frame.out_width,
-                    frame.out_height,
-                )?,
-                None => self.ssim.record(
-                    cmd,
-                    out_addr,
-                    gt_addr,
-                    dout_addr,
-                    -cfg.lambda_ssim,
-                    frame.out_width,
-                    frame.out_height,
-                )?,
-            }
+            // SVRaster's rule (`clamp_rgb_loss`): SSIM of the clamped image, its
+            // gradient passed back through the clamp to the raw output.
+            let (x, raw) = match self.loss.clamped_rgb() {
+                Some(clamped) => (clamped.address(), out_addr),
+                None => (out_addr, 0),
+            };
+            self.ssim.record_with(
+                cmd,
+                x,
+                gt_addr,
+                dout_addr,
+                -cfg.lambda_ssim,
+                frame.out_width,
+                frame.out_height,
+                raw,
+            )?;
         }
         if let Some(t) = timing.as_mut() {
             t.1.mark(cmd, "losses");

@@ -357,6 +357,73 @@ fn segmented_training_matches_unsegmented_training() {
     finish(&ctx);
 }
 
+/// SVRaster's loss on the clamped output (`clamp_rgb_loss`, docs/PARITY.md item 10),
+/// wired through the trainer: where every rendered pixel is far above 1 the clamp
+/// passes no gradient, from the MSE or from SSIM, so a few iterations leave the model
+/// as it was; without the switch the same iterations move every visible colour. Fails
+/// if either loss takes its gradient from the unclamped image.
+#[test]
+fn clamped_output_losses_pass_no_gradient_above_one() {
+    let ctx = context();
+    let dir = demo_data("clamp", 24);
+    let train = data::load_split(dir.path(), "train", 1.0, [1.0; 3]).unwrap();
+    let mut cfg = TrainConfig {
+        grid_level: 3,
+        ..quick(1000)
+    };
+    // Only the photometric losses: every other term would move the model by itself.
+    cfg.lambda_mse = 1.0;
+    cfg.lambda_ssim = 0.2;
+    cfg.lambda_t = 0.0;
+    cfg.lambda_t_inside = 0.0;
+    cfg.lambda_dist = 0.0;
+    cfg.lambda_normal_dmed = 0.0;
+    cfg.lambda_normal_dmean = 0.0;
+    cfg.lambda_r = 0.0;
+    cfg.lambda_r_colour = 0.0;
+    cfg.lambda_tv = 0.0;
+    let mut init = uniform_grid(&cfg).unwrap();
+    // Opaque voxels with colour ≈ 0.5 + 0.28 · 100: every pixel that sees a voxel is
+    // far above 1 (one that sees none gets no colour gradient either way).
+    init.geo.iter_mut().for_each(|g| *g = 5.0);
+    init.sh0.iter_mut().for_each(|c| *c = [100.0; 3]);
+    init.shs.iter_mut().for_each(|c| *c = 0.0);
+    let run = |clamp: bool| {
+        let mut t = Trainer::new(
+            &ctx,
+            TrainConfig {
+                clamp_rgb_loss: clamp,
+                ..cfg.clone()
+            },
+            &train,
+            Some(init.clone()),
+        )
+        .unwrap();
+        for _ in 0..3 {
+            t.step(false).unwrap();
+        }
+        t.scene().unwrap()
+    };
+    let moved = |s: &Scene| {
+        let geo = s.geo.iter().zip(&init.geo).filter(|(a, b)| a != b).count();
+        let sh0 = s.sh0.iter().zip(&init.sh0).filter(|(a, b)| a != b).count();
+        (geo, sh0)
+    };
+    let (clamped, raw) = (moved(&run(true)), moved(&run(false)));
+    println!(
+        "changed by 3 iterations (densities, colours) of {} / {}: clamped {clamped:?}, unclamped {raw:?}",
+        init.geo.len(),
+        init.sh0.len()
+    );
+    assert_eq!(clamped, (0, 0), "the clamped losses passed a gradient");
+    // Three views see the surface voxels of the opaque grid (~a fifth of them).
+    assert!(
+        raw.0 > 50 && raw.1 > 50,
+        "without the clamp only {raw:?} moved"
+    );
+    finish(&ctx);
+}
+
 #[test]
 fn non_finite_values_stop_training_with_a_clear_error() {
     let ctx = context();

@@ -24,15 +24,8 @@ fn optional_outputs_off_give_the_same_gradients() {
     };
     let red = Reduction::Ordered;
     let spec = LossSpec {
-        lambda_dist: 0.0,
         lambda_r: 0.5,
-        lambda_r_colour: 0.0,
-        dist_contracted: false,
-        colour_straight: false,
-        alpha_straight: false,
-        lambda_t: 0.0,
-        lambda_t_inside: 0.0,
-        r_target_bilinear: false,
+        ..Default::default()
     };
     let a = gpu_grads_with(
         &ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false, on,
@@ -66,13 +59,7 @@ fn optional_outputs_off_give_the_same_gradients() {
     let spec = LossSpec {
         lambda_dist: 0.5,
         lambda_r: 0.5,
-        lambda_r_colour: 0.0,
-        dist_contracted: false,
-        colour_straight: false,
-        alpha_straight: false,
-        lambda_t: 0.0,
-        lambda_t_inside: 0.0,
-        r_target_bilinear: false,
+        ..Default::default()
     };
     // Distortion without normals (the no-normal kernels with the distortion terms).
     let dist_only = FrameOutputs {
@@ -114,13 +101,7 @@ fn generic_walk_gradients_equal_the_8_lane_walk() {
         let spec = LossSpec {
             lambda_dist: 0.5,
             lambda_r: 0.5,
-            lambda_r_colour: 0.0,
-            dist_contracted: false,
-            colour_straight: false,
-            alpha_straight: false,
-            lambda_t: 0.0,
-            lambda_t_inside: 0.0,
-            r_target_bilinear: false,
+            ..Default::default()
         };
         let red = Reduction::Ordered;
         let fast = gpu_grads_walk(&ctx, &scene, &cam, 1, &pix, &spec, red, None, 1.0, false);
@@ -173,13 +154,7 @@ fn backward_matches_reference_on_random_scenes() {
             let spec = LossSpec {
                 lambda_dist: rng.range(0.1, 2.0),
                 lambda_r: rng.range(0.1, 2.0),
-                lambda_r_colour: 0.0,
-                dist_contracted: false,
-                colour_straight: false,
-                alpha_straight: false,
-                lambda_t: 0.0,
-                lambda_t_inside: 0.0,
-                r_target_bilinear: false,
+                ..Default::default()
             };
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
             for red in reductions(&ctx) {
@@ -289,11 +264,7 @@ fn segmented_frame_gradients_match_reference() {
             lambda_r: 0.5,
             lambda_r_colour: 0.3,
             dist_contracted: seg == 3,
-            colour_straight: false,
-            alpha_straight: false,
-            lambda_t: 0.0,
-            lambda_t_inside: 0.0,
-            r_target_bilinear: false,
+            ..Default::default()
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -344,13 +315,7 @@ fn one_segment_per_tile_gives_the_unsegmented_gradients() {
     let spec = LossSpec {
         lambda_dist: 0.7,
         lambda_r: 0.4,
-        lambda_r_colour: 0.0,
-        dist_contracted: false,
-        colour_straight: false,
-        alpha_straight: false,
-        lambda_t: 0.0,
-        lambda_t_inside: 0.0,
-        r_target_bilinear: false,
+        ..Default::default()
     };
     let all = FrameOutputs {
         normals: true,
@@ -422,13 +387,7 @@ fn long_tile_lists_at_the_default_chunk_size() {
     let spec = LossSpec {
         lambda_dist: 1.0,
         lambda_r: 1.0,
-        lambda_r_colour: 0.0,
-        dist_contracted: false,
-        colour_straight: false,
-        alpha_straight: false,
-        lambda_t: 0.0,
-        lambda_t_inside: 0.0,
-        r_target_bilinear: false,
+        ..Default::default()
     };
     let reference = grads(&scene, &cam, 1, &pix, &spec);
     let hit = reference.priority.iter().filter(|&&p| p > 0.0).count();
@@ -482,13 +441,7 @@ fn sparse_tiles_backward_matches_reference() {
         let spec = LossSpec {
             lambda_dist: 1.0,
             lambda_r: 0.5,
-            lambda_r_colour: 0.0,
-            dist_contracted: false,
-            colour_straight: false,
-            alpha_straight: false,
-            lambda_t: 0.0,
-            lambda_t_inside: 0.0,
-            r_target_bilinear: false,
+            ..Default::default()
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -546,13 +499,7 @@ fn near_opaque_voxels_backward_matches_reference() {
         let spec = LossSpec {
             lambda_dist: 1.0,
             lambda_r: 1.0,
-            lambda_r_colour: 0.0,
-            dist_contracted: false,
-            colour_straight: false,
-            alpha_straight: false,
-            lambda_t: 0.0,
-            lambda_t_inside: 0.0,
-            r_target_bilinear: false,
+            ..Default::default()
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         for red in reductions(&ctx) {
@@ -606,13 +553,8 @@ fn contracted_distortion_matches_reference_across_distance_one() {
         let spec = LossSpec {
             lambda_dist: 1.0,
             lambda_r: if all { 0.5 } else { 0.0 },
-            lambda_r_colour: 0.0,
             dist_contracted: true,
-            colour_straight: false,
-            alpha_straight: false,
-            lambda_t: 0.0,
-            lambda_t_inside: 0.0,
-            r_target_bilinear: false,
+            ..Default::default()
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         // The contraction changes the gradients (the test sees it).
@@ -623,11 +565,6 @@ fn contracted_distortion_matches_reference_across_distance_one() {
             &pix,
             &LossSpec {
                 dist_contracted: false,
-                colour_straight: false,
-                alpha_straight: false,
-                lambda_t: 0.0,
-                lambda_t_inside: 0.0,
-                r_target_bilinear: false,
                 ..spec
             },
         );
@@ -688,13 +625,7 @@ fn frame_mean_background_gradients_match_reference() {
         let spec = LossSpec {
             lambda_dist: 0.5,
             lambda_r: 0.5,
-            lambda_r_colour: 0.0,
-            dist_contracted: false,
-            colour_straight: false,
-            alpha_straight: false,
-            lambda_t: 0.0,
-            lambda_t_inside: 0.0,
-            r_target_bilinear: false,
+            ..Default::default()
         };
         let reference = grads(&scene, &cam, k as usize, &pix, &spec);
         // The frame mean changes the gradients (the test sees it).
@@ -799,15 +730,10 @@ fn colour_clamp_straight_through_matches_reference() {
     let mut refs = Vec::new();
     for straight in [false, true] {
         let spec = LossSpec {
-            lambda_dist: 0.0,
             lambda_r: 0.5,
             lambda_r_colour: 0.3,
-            dist_contracted: false,
             colour_straight: straight,
-            alpha_straight: false,
-            lambda_t: 0.0,
-            lambda_t_inside: 0.0,
-            r_target_bilinear: false,
+            ..Default::default()
         };
         let reference = grads(&scene, &cam, 2, &pix, &spec);
         for red in reductions(&ctx) {
@@ -877,15 +803,9 @@ fn alpha_clamp_straight_through_matches_reference() {
         let mut ordered = Vec::new();
         for straight in [false, true] {
             let spec = LossSpec {
-                lambda_dist: 0.0,
                 lambda_r: 0.5,
-                lambda_r_colour: 0.0,
-                dist_contracted: false,
-                colour_straight: false,
                 alpha_straight: straight,
-                lambda_t: 0.0,
-                lambda_t_inside: 0.0,
-                r_target_bilinear: false,
+                ..Default::default()
             };
             let reference = grads(&scene, &cam, k as usize, &pix, &spec);
             for red in reductions(&ctx) {
