@@ -19,7 +19,10 @@
 // - `sort/histogram[_k32]`, `sort/onesweep[_k32]`: the radix sort's digit histogram and
 //   its direct pass over u64 keys, or (`_k32`) u32 keys for a sort whose bits all lie
 //   below 32; `sort/onesweep_c{256,128}[_k32]`: the pass with coalesced writes (GPUs),
-//   256 invocations for subgroups of ≥ 16 lanes, 128 for any size.
+//   256 invocations for subgroups of ≥ 16 lanes, 128 for any size;
+//   `sort/scanpass_s{256,128}[_k32]` the same pass reading prefixes instead of looking
+//   back, and `sort/tile_count_s{256,128}[_k32]` its tiles' digit counts (the
+//   reduce-then-scan passes).
 
 /// One `#define NAME VALUE`.
 pub type Define = (&'static str, String);
@@ -155,6 +158,41 @@ pub fn families() -> Vec<Family> {
             axes: vec![key_widths()],
             name_order: vec![0],
             fixed: ("", vec![d("WG", wg), d("KPT", 15), d("MIN_SG", min_sg)]),
+        });
+    }
+    for (wg, min_sg) in [(256, 16), (128, 8)] {
+        let fixed = vec![d("WG", wg), d("KPT", 15), d("MIN_SG", min_sg)];
+        f.push(Family {
+            name: if wg == 256 {
+                "SORT_SCANPASS_S256"
+            } else {
+                "SORT_SCANPASS_S128"
+            },
+            path: if wg == 256 {
+                "sort/scanpass_s256"
+            } else {
+                "sort/scanpass_s128"
+            },
+            body: "sort/onesweep_coalesced.glsl",
+            axes: vec![key_widths()],
+            name_order: vec![0],
+            fixed: ("", [fixed.clone(), vec![d("SCAN_PREFIX", 1)]].concat()),
+        });
+        f.push(Family {
+            name: if wg == 256 {
+                "SORT_TILE_COUNT_S256"
+            } else {
+                "SORT_TILE_COUNT_S128"
+            },
+            path: if wg == 256 {
+                "sort/tile_count_s256"
+            } else {
+                "sort/tile_count_s128"
+            },
+            body: "sort/tile_count.glsl",
+            axes: vec![key_widths()],
+            name_order: vec![0],
+            fixed: ("", fixed),
         });
     }
     f

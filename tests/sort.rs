@@ -4,7 +4,7 @@
 use crate::common;
 
 use common::Rng;
-use svraster::gpu::{recorder, Context, Memory};
+use svraster::gpu::{recorder, Context, Memory, Timestamps};
 use svraster::scan::PrefixScan;
 use svraster::sort::{Count, KeyWidth, RadixSort, SortPass, SortScratch, Sorted, ERR_OVERFLOW};
 
@@ -205,11 +205,12 @@ fn sort_low_byte_only() {
     check_dist(Dist::LowByteOnly, 7);
 }
 
-/// Every pass kernel this device runs (all three on a GPU; on lavapipe, whose 8-lane
-/// subgroups `c256` does not support, `direct` and `c128`, which is `c256`'s body with
-/// 128 invocations), with the shuffle and the ballot ranking, u64 and u32 keys, the
-/// look-back's recount fallback forced (spin limit 0) and not, look-back windows of 1, 3 and 8
-/// words (coalesced passes), against the reference.
+/// Every pass kernel this device runs (all five on a GPU; on lavapipe, whose 8-lane
+/// subgroups `c256` and `s256` do not support, `direct`, `c128` and `s128`, which are
+/// the 256-invocation kernels' bodies with 128 invocations), with the shuffle and the
+/// ballot ranking, u64 and u32 keys, the look-back's recount fallback forced (spin limit
+/// 0) and not, look-back windows of 1, 3 and 8 words (coalesced passes), against the
+/// reference.
 #[test]
 fn sort_every_pass_kernel() {
     let ctx = common::context();
@@ -233,6 +234,8 @@ fn sort_every_pass_kernel() {
                 (true, None, None),
                 (false, Some(0), None),
             ],
+            // No look-back: its settings change nothing.
+            SortPass::Scan128 | SortPass::Scan256 => &[(false, None, None), (true, None, None)],
             _ => &[
                 (false, None, None),
                 (true, None, None),
@@ -277,6 +280,86 @@ fn sort_every_pass_kernel() {
                     let rk: Vec<u32> = rk.iter().map(|&k| k as u32).collect();
                     assert!(gk == rk && gv == rv, "{}", what("u32 bits 0..26"));
                 }
+            }
+        }
+    }
+    common::finish(&ctx);
+}
+
+/// The reduce-then-scan passes with more tiles than one round of their scan over the
+/// tiles covers (2 048 tiles per round, glsl/sort/tile_scan.comp): 2 rounds and a partial
+/// third, so each round must carry the sum of the ones before.
+#[test]
+fn reduce_then_scan_over_several_scan_rounds() {
+    let ctx = common::context();
+    let mut rng = Rng(79);
+    for pass in SortPass::ALL
+        .into_iter()
+        .filter(|p| p.reduce_then_scan() && p.supported(ctx.info()))
+    {
+        let n = pass.tile() as usize * (2 * 2048 + 100) + 77;
+        let h = Harness::with_pass(&ctx, n as u32, pass);
+        let keys: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
+        let vals: Vec<u32> = (0..n as u32).collect();
+        let (gk, gv) = h.run(&keys, &vals, 20, 36);
+        let (rk, rv) = common::reference_sort(&keys, &vals, 20, 36);
+        assert!(gk == rk && gv == rv, "{}: n = {n}", pass.name());
+    }
+    common::finish(&ctx);
+}
+
+/// A sort's stage timestamps (`bench sort`): every pass kernel marks setup, histogram,
+/// each pass (reduce-then-scan passes their count too) and the copy, in order; a pool too
+/// small for them is an error, not a report that lacks its last stages.
+#[test]
+fn sort_stage_timestamps_are_complete_or_an_error() {
+    let ctx = common::context();
+    let n = 5_000u32;
+    let mut rng = Rng(80);
+    let keys: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
+    let vals: Vec<u32> = (0..n).collect();
+    for pass in SortPass::ALL
+        .into_iter()
+        .filter(|p| p.supported(ctx.info()))
+    {
+        let h = Harness::with_pass(&ctx, n, pass);
+        let passes = 3u32; // bits 0..24
+        let mut want = vec!["sort.setup".to_string(), "sort.histogram".to_string()];
+        for p in 0..passes {
+            if pass.reduce_then_scan() {
+                want.push(format!("sort.count{p}"));
+            }
+            want.push(format!("sort.pass{p}"));
+        }
+        want.push("sort.copy".to_string());
+        for capacity in [want.len() as u32 + 1, want.len() as u32] {
+            let mut ts = Timestamps::new(&ctx, capacity).unwrap();
+            ctx.upload(&h.buf.keys, 0, &keys).unwrap();
+            ctx.upload(&h.buf.values, 0, &vals).unwrap();
+            ctx.submit_and_wait(|cmd| {
+                ts.begin(cmd);
+                h.sort.record(
+                    cmd,
+                    &h.buf.as_buffers(),
+                    Count::Host(n),
+                    0..24,
+                    Some(&mut ts),
+                )
+            })
+            .unwrap();
+            let stages = ts.stages();
+            if capacity > want.len() as u32 {
+                let names: Vec<String> = stages.unwrap().into_iter().map(|(k, _)| k).collect();
+                assert_eq!(names, want, "{}", pass.name());
+            } else {
+                let e = stages
+                    .expect_err("a mark past the pool's capacity")
+                    .to_string();
+                assert!(
+                    e.contains("1 timestamp marks after `sort.pass2`"),
+                    "{}: {e}",
+                    pass.name()
+                );
             }
         }
     }
@@ -333,6 +416,10 @@ fn lookback_counters_count_each_run() {
         assert_eq!((gk, gv), common::reference_sort(&keys, &vals, 0, 16));
         let c = h.sort.last_lookback().unwrap();
         println!("{}: {tiles} tiles x 2 passes: {c:?}", pass.name());
+        if pass.reduce_then_scan() {
+            assert_eq!(c, Default::default(), "{}: no look-back", pass.name());
+            continue;
+        }
         let (least, most) = ((tiles - 1) * 256 * 2, tiles * (tiles - 1) / 2 * 256 * 2);
         assert!(u64::from(c.steps) <= most, "{}: {c:?}", pass.name());
         assert!(c.steps > 0, "{}: {c:?}", pass.name());
@@ -566,16 +653,46 @@ fn sort_beyond_storage_buffer_range() {
 fn sort_count_from_device_and_overflow() {
     let ctx = common::context();
     let cap = 10_000u32;
-    let sort = RadixSort::new(&ctx, cap).unwrap();
-    let buf = SortScratch::new(&ctx, cap).unwrap();
-    let count = ctx.buffer("count", 4, Memory::Device).unwrap();
-    let mut rng = Rng(13);
-    let keys: Vec<u64> = (0..cap).map(|_| rng.next_u64()).collect();
-    let vals: Vec<u32> = (0..cap).collect();
-    for n in [0u32, 1, 777, 5000, cap] {
+    for pass in SortPass::ALL
+        .into_iter()
+        .filter(|p| p.supported(ctx.info()))
+    {
+        let sort = RadixSort::with_pass(&ctx, cap, pass).unwrap();
+        let buf = SortScratch::new(&ctx, cap).unwrap();
+        let count = ctx.buffer("count", 4, Memory::Device).unwrap();
+        let mut rng = Rng(13);
+        let keys: Vec<u64> = (0..cap).map(|_| rng.next_u64()).collect();
+        let vals: Vec<u32> = (0..cap).collect();
+        for n in [0u32, 1, 777, 5000, cap] {
+            ctx.upload(&buf.keys, 0, &keys).unwrap();
+            ctx.upload(&buf.values, 0, &vals).unwrap();
+            ctx.upload(&count, 0, &[n]).unwrap();
+            let w = ctx
+                .submit_and_wait(|cmd| {
+                    sort.record(
+                        cmd,
+                        &buf.as_buffers(),
+                        Count::Device {
+                            buffer: &count,
+                            offset: 0,
+                        },
+                        0..64,
+                        None,
+                    )
+                })
+                .unwrap();
+            assert_eq!(sort.take_errors().unwrap(), 0);
+            assert_eq!(sort.last_count().unwrap(), (n, n));
+            let (k, v) = buf.result(w);
+            let gk: Vec<u64> = ctx.download(k, 0, n as usize).unwrap();
+            let gv: Vec<u32> = ctx.download(v, 0, n as usize).unwrap();
+            let (rk, rv) = common::reference_sort(&keys[..n as usize], &vals[..n as usize], 0, 64);
+            assert!(gk == rk && gv == rv, "{}: device count {n}", pass.name());
+        }
+        // Overflow: the sort clamps to `cap`, sorts those pairs, and raises ERR_OVERFLOW.
         ctx.upload(&buf.keys, 0, &keys).unwrap();
         ctx.upload(&buf.values, 0, &vals).unwrap();
-        ctx.upload(&count, 0, &[n]).unwrap();
+        ctx.upload(&count, 0, &[cap + 12_345]).unwrap();
         let w = ctx
             .submit_and_wait(|cmd| {
                 sort.record(
@@ -590,75 +707,57 @@ fn sort_count_from_device_and_overflow() {
                 )
             })
             .unwrap();
-        assert_eq!(sort.take_errors().unwrap(), 0);
-        assert_eq!(sort.last_count().unwrap(), (n, n));
-        let (k, v) = buf.result(w);
-        let gk: Vec<u64> = ctx.download(k, 0, n as usize).unwrap();
-        let gv: Vec<u32> = ctx.download(v, 0, n as usize).unwrap();
-        let (rk, rv) = common::reference_sort(&keys[..n as usize], &vals[..n as usize], 0, 64);
-        assert!(gk == rk && gv == rv, "device count {n}");
+        assert_eq!(sort.last_count().unwrap(), (cap, cap + 12_345));
+        assert_eq!(sort.take_errors().unwrap(), ERR_OVERFLOW);
+        assert_eq!(
+            sort.take_errors().unwrap(),
+            0,
+            "errors are cleared once taken"
+        );
+        let (k, _) = buf.result(w);
+        let gk: Vec<u64> = ctx.download(k, 0, cap as usize).unwrap();
+        let (rk, _) = common::reference_sort(&keys, &vals, 0, 64);
+        assert_eq!(gk, rk);
     }
-    // Overflow: the sort clamps to `cap`, sorts those pairs, and raises ERR_OVERFLOW.
-    ctx.upload(&buf.keys, 0, &keys).unwrap();
-    ctx.upload(&buf.values, 0, &vals).unwrap();
-    ctx.upload(&count, 0, &[cap + 12_345]).unwrap();
-    let w = ctx
-        .submit_and_wait(|cmd| {
-            sort.record(
-                cmd,
-                &buf.as_buffers(),
-                Count::Device {
-                    buffer: &count,
-                    offset: 0,
-                },
-                0..64,
-                None,
-            )
-        })
-        .unwrap();
-    assert_eq!(sort.last_count().unwrap(), (cap, cap + 12_345));
-    assert_eq!(sort.take_errors().unwrap(), ERR_OVERFLOW);
-    assert_eq!(
-        sort.take_errors().unwrap(),
-        0,
-        "errors are cleared once taken"
-    );
-    let (k, _) = buf.result(w);
-    let gk: Vec<u64> = ctx.download(k, 0, cap as usize).unwrap();
-    let (rk, _) = common::reference_sort(&keys, &vals, 0, 64);
-    assert_eq!(gk, rk);
     common::finish(&ctx);
 }
 
-/// Two sorts recorded back to back in one command buffer (the look-back epochs of the
-/// second run must not see the first run's status words).
+/// Two sorts recorded back to back in one command buffer, with every pass kernel (the
+/// look-back epochs of the second run must not see the first run's status words; the
+/// reduce-then-scan passes rewrite their counts there).
 #[test]
 fn sort_twice_in_one_command_buffer() {
     let ctx = common::context();
     let n = 300_000u32;
-    let sort = RadixSort::new(&ctx, n).unwrap();
-    let a = SortScratch::new(&ctx, n).unwrap();
-    let b = SortScratch::new(&ctx, n).unwrap();
-    let mut rng = Rng(14);
-    let ka: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
-    let kb: Vec<u64> = (0..n).map(|_| rng.next_u64() & 0xffff_ffff).collect();
-    let vals: Vec<u32> = (0..n).collect();
-    for (s, k) in [(&a, &ka), (&b, &kb)] {
-        ctx.upload(&s.keys, 0, k).unwrap();
-        ctx.upload(&s.values, 0, &vals).unwrap();
-    }
-    let (wa, wb) = ctx
-        .submit_and_wait(|cmd| {
-            let wa = sort.record(cmd, &a.as_buffers(), Count::Host(n), 0..64, None)?;
-            let wb = sort.record(cmd, &b.as_buffers(), Count::Host(n), 0..32, None)?;
-            Ok((wa, wb))
-        })
-        .unwrap();
-    for (s, w, k, bits) in [(&a, wa, &ka, 64), (&b, wb, &kb, 32)] {
-        let (rk, rv) = common::reference_sort(k, &vals, 0, bits);
-        let (gk, gv) = s.result(w);
-        assert_eq!(ctx.download::<u64>(gk, 0, n as usize).unwrap(), rk);
-        assert_eq!(ctx.download::<u32>(gv, 0, n as usize).unwrap(), rv);
+    for pass in SortPass::ALL
+        .into_iter()
+        .filter(|p| p.supported(ctx.info()))
+    {
+        let sort = RadixSort::with_pass(&ctx, n, pass).unwrap();
+        let a = SortScratch::new(&ctx, n).unwrap();
+        let b = SortScratch::new(&ctx, n).unwrap();
+        let mut rng = Rng(14);
+        let ka: Vec<u64> = (0..n).map(|_| rng.next_u64()).collect();
+        let kb: Vec<u64> = (0..n).map(|_| rng.next_u64() & 0xffff_ffff).collect();
+        let vals: Vec<u32> = (0..n).collect();
+        for (s, k) in [(&a, &ka), (&b, &kb)] {
+            ctx.upload(&s.keys, 0, k).unwrap();
+            ctx.upload(&s.values, 0, &vals).unwrap();
+        }
+        let (wa, wb) = ctx
+            .submit_and_wait(|cmd| {
+                let wa = sort.record(cmd, &a.as_buffers(), Count::Host(n), 0..64, None)?;
+                let wb = sort.record(cmd, &b.as_buffers(), Count::Host(n), 0..32, None)?;
+                Ok((wa, wb))
+            })
+            .unwrap();
+        for (s, w, k, bits) in [(&a, wa, &ka, 64), (&b, wb, &kb, 32)] {
+            let (rk, rv) = common::reference_sort(k, &vals, 0, bits);
+            let (gk, gv) = s.result(w);
+            let ok = ctx.download::<u64>(gk, 0, n as usize).unwrap() == rk
+                && ctx.download::<u32>(gv, 0, n as usize).unwrap() == rv;
+            assert!(ok, "{}: sort of {bits} bits", pass.name());
+        }
     }
     common::finish(&ctx);
 }

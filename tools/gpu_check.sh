@@ -12,7 +12,7 @@
 #      1/4 size, its own test renders: $OUT/svr_tiny.tgz, for
 #      `cli import::svraster_s_own_renders_match_ours` with SVRASTER_SVR_FIXTURE)
 #   2. the test binaries (4 at a time, 6 threads each) while that builds
-#   3. bench sort 2^24 (auto and direct pass, 40 bits, spin limits 64 and 10^6, histogram
+#   3. bench sort 2^24 (auto, reduce-then-scan s256 and s128, direct pass, 40 bits, spin limits 64 and 10^6, histogram
 #      workgroups uncapped and 256, look-back windows 1 and 8) and
 #      2^20 and 2^22, with look-back counters;
 #      bench train lego 100²/200²/400² level 6 (auto segments) and 400² level 7
@@ -72,12 +72,13 @@ if [ -n "${SVR:-}" ]; then
   (cd $X && tar czf "$O/svr_tiny.tgz" svr_tiny svr_tiny.log 2>/dev/null)
 fi
 stamp bench
-for a in "--pass auto" "--pass direct" "--bits 0..40" "--spin 64" "--spin 1000000" "--hist-groups 0" "--hist-groups 256" "--window 1" "--window 8"; do
+for a in "--pass auto" "--pass s256" "--pass s128" "--pass direct" "--bits 0..40" "--spin 64" "--spin 1000000" "--hist-groups 0" "--hist-groups 256" "--window 1" "--window 8"; do
   nb=--no-baseline; [ "$a" = "--pass auto" ] && nb=
   timeout 40 "$B" bench sort --n 16777216 --runs 5 --warmup 2 $a $nb --json >> $X/sort.jsonl 2>>$X/sort.err
 done
 for n in 1048576 4194304; do
   timeout 40 "$B" bench sort --n $n --runs 5 --warmup 2 --json >> $X/sort.jsonl 2>>$X/sort.err
+  timeout 40 "$B" bench sort --n $n --runs 5 --warmup 2 --pass s256 --no-baseline --json >> $X/sort.jsonl 2>>$X/sort.err
 done
 python3 - $X/sort.jsonl <<'PY'
 import json, sys
@@ -109,7 +110,10 @@ train() { # name, settings...
 }
 RES=170; train base
 timeout 40 "$B" bench render /tmp/runs/base --data /tmp/lego --split test --views 20 --runs 3 --json > $X/render_base.json 2>$X/render_base.err
-python3 -c "import json; d=json.load(open('$X/render_base.json')); print('render: GPU', d['median_ms'], 'ms, wall', d['wall_median_ms'], 'ms, segments', d.get('segment_entries'))" || tail -3 $X/render_base.err
+python3 -c "import json; d=json.load(open('$X/render_base.json')); print('render: GPU', d['median_ms'], 'ms, wall', d['wall_median_ms'], 'ms, segments', d.get('segment_entries'), 'sort', d.get('sort_pass'), {k: round(v, 3) for k, v in d['stages_median_ms'].items() if 'sort' in k})" || tail -3 $X/render_base.err
+# The same frames with the reduce-then-scan sort passes (issue 33: is the look-back what a pass waits on?)
+SVRASTER_SORT_PASS=s256 timeout 40 "$B" bench render /tmp/runs/base --data /tmp/lego --split test --views 20 --runs 3 --json > $X/render_base_s256.json 2>$X/render_base_s256.err
+python3 -c "import json; d=json.load(open('$X/render_base_s256.json')); print('render: GPU', d['median_ms'], 'ms, wall', d['wall_median_ms'], 'ms, sort', d.get('sort_pass'), {k: round(v, 3) for k, v in d['stages_median_ms'].items() if 'sort' in k})" || tail -3 $X/render_base_s256.err
 if [ -n "${SVR:-}" ]; then
   stamp "SVRaster, $ITERS iterations"
   timeout -s INT $(cap 170 20) bash "$G/svr/run_svr.sh" run /tmp/lego /tmp/svr $ITERS > $X/svr_run.log 2>&1; echo "svr rc=$?"

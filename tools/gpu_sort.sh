@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Sort sweep for a lent GPU (issue 33, "the onesweep sort at a GPU's speed"): `bench sort`
 # of 2^24 u64 keys + u32 values with each pass kernel (direct = lavapipe's, c128 and c256
-# = coalesced writes through shared memory), all 64 bits and a frame-like 0..40, then
+# = coalesced writes through shared memory, s128 and s256 = the same without look-back,
+# reduce-then-scan), all 64 bits and a frame-like 0..40, then
 # with keys that vary only in 0..40 (three passes skipped). One process per run,
 # kernels alternating, 2 rounds. Prepare here with ../shared/gpu/prepare.sh .gpu (see
 # ../shared/gpu/README.md), then on the device, from the checkout's root, in one call:
@@ -14,7 +15,7 @@ G=$(cd "${1:-.gpu}" && pwd); O=${OUT:-/tmp/out}; mkdir -p "$O"
 : > "$O/sort.jsonl"
 for round in 1 2; do
   for args in "--bits 0..64" "--bits 0..40" "--bits 0..64 --vary 0..40"; do
-    for pass in direct c128 c256; do
+    for pass in direct c128 c256 s128 s256; do
       timeout 60 "$B" bench sort --n 16777216 --runs 5 --warmup 2 --pass $pass $args --json \
         >> "$O/sort.jsonl" 2>> "$O/sort.err" \
         || echo "bench sort --pass $pass $args failed: $(tail -2 "$O/sort.err")"

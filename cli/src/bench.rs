@@ -7,6 +7,7 @@ use std::time::Instant;
 use anyhow::bail;
 use clap::Subcommand;
 use svraster::gpu::{Context, Timestamps};
+use svraster::sort::SortPass;
 
 use svraster::eval::median;
 
@@ -363,6 +364,7 @@ fn bench_render(ctx: &Context, b: &RenderBench, json: bool) -> anyhow::Result<()
             "tile_balance_median": median(&balance),
             "walk_workgroups_per_dispatch": median(&walk_groups),
             "segment_entries": r.segment_entries(),
+            "sort_pass": SortPass::for_run(ctx.info()).map_err(anyhow::Error::msg)?.name(),
             "queue_per_frame": queue.json(),
             "device": ctx.info().name,
             "subgroup_size": ctx.info().subgroup_size,
@@ -571,6 +573,7 @@ fn bench_train(
             "tile_balance_median": median(&balance),
             "walk_workgroups_per_dispatch_median": median(&walk_groups),
             "segment_entries": t.segment_entries(),
+            "sort_pass": SortPass::for_run(ctx.info()).map_err(anyhow::Error::msg)?.name(),
             "work_per_iter": work_json(&work),
         });
         println!("{obj}");

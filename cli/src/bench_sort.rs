@@ -71,12 +71,22 @@ fn parse_bits(s: &str) -> Result<Range<u32>, String> {
     Ok(lo..hi)
 }
 
-fn stage_order(name: &str) -> (u32, String) {
+fn stage_order(name: &str) -> (u32, u32, u32, String) {
+    let index = |p: &str| p.parse().unwrap_or(u32::MAX);
     match name {
-        "sort.setup" => (0, String::new()),
-        "sort.histogram" => (1, String::new()),
-        "sort.copy" => (3, String::new()),
-        _ => (2, format!("{:>8}", name)),
+        "sort.setup" => (0, 0, 0, String::new()),
+        "sort.histogram" => (1, 0, 0, String::new()),
+        "sort.copy" => (3, 0, 0, String::new()),
+        _ => {
+            // A reduce-then-scan pass's count and scan, then the pass itself.
+            if let Some(p) = name.strip_prefix("sort.count") {
+                (2, index(p), 0, String::new())
+            } else if let Some(p) = name.strip_prefix("sort.pass") {
+                (2, index(p), 1, String::new())
+            } else {
+                (2, u32::MAX, 0, name.to_string())
+            }
+        }
     }
 }
 
@@ -105,7 +115,8 @@ struct SortReport {
     /// Bytes a pass reads and writes: n × (8-byte key + 4-byte value) × 2.
     bytes_per_pass: u64,
     /// bytes_per_pass / median time, per pass that ran (GB/s = 1e9 bytes/s); the
-    /// histogram reads n keys once.
+    /// histogram and a reduce-then-scan pass's count (`sort.countP`: the tile counts
+    /// and their scan, timed apart from `sort.passP`) read n keys once.
     stages_gb_per_s: BTreeMap<String, f64>,
     /// The decoupled look-back of the timed runs (medians): status words read per digit
     /// and tile (1 is the least: the predecessor had its inclusive prefix), extra polls
@@ -227,7 +238,8 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     let src_k = ctx.buffer_from("bench.keys.src", &keys)?;
     let src_v = ctx.buffer_from("bench.values.src", &values)?;
     let passes = passes_for(&bits);
-    let mut ts = Timestamps::new(ctx, 5 + passes)?;
+    // start, setup, histogram, per pass a count (reduce-then-scan) and the pass, copy.
+    let mut ts = Timestamps::new(ctx, 4 + 2 * passes)?;
     let mut gpu_ms = Vec::new();
     let mut wall_ms = Vec::new();
     let mut stages: BTreeMap<String, Vec<f64>> = BTreeMap::new();
@@ -294,6 +306,14 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         .iter()
         .filter_map(|(k, &ms)| {
             let bytes = if k == "sort.histogram" {
+                u64::from(n) * 8
+            } else if let Some(p) = k.strip_prefix("sort.count") {
+                // Reduce-then-scan: the tile counts read the keys once (the scan's
+                // 1 KiB per tile is not counted).
+                let p: u32 = p.parse().ok()?;
+                if skipped & (1 << p) != 0 {
+                    return None;
+                }
                 u64::from(n) * 8
             } else if let Some(p) = k.strip_prefix("sort.pass") {
                 let p: u32 = p.parse().ok()?;

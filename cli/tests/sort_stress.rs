@@ -4,7 +4,8 @@
 //! same 2^20 sort (hundreds of workgroups, far more than run at once) is run 20 times by
 //! the CLI bench, which verifies every run, under validation — with the direct pass
 //! and with the coalesced pass GPUs take (`c128`: the body of `c256` at 128
-//! invocations, which 8-lane subgroups support).
+//! invocations, which 8-lane subgroups support), and once with the reduce-then-scan
+//! pass (`s128`), whose workgroups never wait on each other.
 
 use std::process::Command;
 
@@ -75,6 +76,10 @@ fn repeated_sort_four_threads() {
     // the others add to the same global counts.
     let v = run_with("4", "direct", &["--hist-groups", "7"]);
     assert_eq!(v["hist_groups"], 7, "{v}");
+    // Reduce-then-scan: no look-back at all, its count and scan timed apart.
+    let v = run("4", "s128");
+    assert_eq!(v["lookback"]["steps_per_digit_tile"], 0.0, "{v}");
+    assert!(v["stages_median_ms"]["sort.count0"].is_number(), "{v}");
 }
 
 #[test]

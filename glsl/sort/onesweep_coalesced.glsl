@@ -22,6 +22,11 @@
 //   needs no forward-progress guarantee), but every digit walks back on its own and the
 //   workgroup votes only once per round of stalls instead of once per predecessor tile.
 //
+// With SCAN_PREFIX (the reduce-then-scan passes, src/sort SortPass::Scan*) there is no
+// look-back: sort/tile_count.glsl and sort/tile_scan.comp have already written, per digit
+// and tile, the count of that digit in every earlier tile (CUB's and GPUSorting's older
+// DeviceRadixSort: upsweep, scan, downsweep), and tiles are workgroup ids.
+//
 // Defines (build.rs variants): WG invocations, KPT keys per invocation, MIN_SG the
 // smallest subgroup size the variant supports (its shared histogram rows: WG / MIN_SG).
 #include "common.glsl"
@@ -67,14 +72,20 @@ shared uint s_lb[2];           // look-back steps and extra polls of the workgro
 
 void main() {
     uint t = gl_LocalInvocationID.x;
+#ifndef SCAN_PREFIX
     if (t == 0u) {
         s_tile = atomicAdd(pc.state.v[ST_TILE_CTR + pc.pass_index], 1u);
         s_lb[0] = 0u;
         s_lb[1] = 0u;
     }
+#endif
     for (uint i = t; i < ROWS_WORDS; i += WG) s_mem[i] = 0u;
     barrier();
+#ifdef SCAN_PREFIX
+    uint tile = linear_group_id(); // no look-back: tiles need not start in order
+#else
     uint tile = s_tile;
+#endif
     uint n = pc.state.v[ST_N];
     uint ntiles = (n + TILE - 1u) / TILE;
     if (tile >= ntiles) return; // uniform: every invocation read the same s_tile
@@ -135,6 +146,7 @@ void main() {
         count[q] = run;
         s_local[d] = run;
     }
+#ifndef SCAN_PREFIX
     // Publish the tile's counts at once: successors' look-back may stop here.
     uint tag = pc.state.v[ST_EPOCH] + pc.pass_index;
     uint status_base = tile * RADIX;
@@ -142,6 +154,7 @@ void main() {
         lb_store(pc.status, status_base + t + q * WG,
                  lb_pack(tag, tile == 0u ? LB_INCLUSIVE : LB_AGGREGATE, count[q]));
     }
+#endif
     barrier();
 
     // 3. Exclusive scan of the tile's counts over the digits: each invocation takes DPT
@@ -181,11 +194,19 @@ void main() {
         }
     }
 
+    uint before[DPT];
+#ifdef SCAN_PREFIX
+    // 5. The keys of this digit in every earlier tile: sort/tile_count.glsl counted
+    // them and sort/tile_scan.comp summed them over the tiles (digit-major words in the
+    // status buffer), so no workgroup waits on another.
+    U32s prefix = U32s(uint64_t(pc.status));
+    [[unroll]] for (uint q = 0u; q < DPT; q++)
+        before[q] = prefix.v[(t + q * WG) * ntiles + tile];
+#else
     // 5. Look-back: every digit walks back on its own. A predecessor that has not
     // published after `spin_limit` polls stalls its digit; then the workgroup recounts
     // the nearest stalled tile from its keys (the fallback: tile j < tile is full) and
     // the digits stalled there go on. One workgroup vote per round of stalls.
-    uint before[DPT];
     uint jj[DPT];
     bool done[DPT];
     bool published[DPT]; // this digit's inclusive prefix is out (as soon as it is known)
@@ -295,6 +316,7 @@ void main() {
             atomicAdd(pc.state.v[ST_LB_WAITS], s_lb[1]);
         }
     }
+#endif
     uint hist_base = ST_HIST + pc.pass_index * RADIX;
     [[unroll]] for (uint q = 0u; q < DPT; q++) {
         uint d = t + q * WG;

@@ -155,6 +155,9 @@ pub struct Timestamps {
     pool: vk::QueryPool,
     capacity: u32,
     labels: Vec<String>,
+    /// Marks past `capacity` since `begin` (then `stages()` is an error, not a report
+    /// that silently lacks its last stages).
+    dropped: u32,
 }
 
 impl Timestamps {
@@ -173,12 +176,14 @@ impl Timestamps {
             pool,
             capacity,
             labels: Vec::new(),
+            dropped: 0,
         })
     }
 
     /// Resets the pool and writes the starting timestamp.
     pub fn begin(&mut self, cmd: vk::CommandBuffer) {
         self.labels.clear();
+        self.dropped = 0;
         unsafe {
             self.ctx
                 .device()
@@ -194,6 +199,7 @@ impl Timestamps {
 
     fn write(&mut self, cmd: vk::CommandBuffer, label: &str) {
         if self.labels.len() as u32 >= self.capacity {
+            self.dropped += 1;
             return;
         }
         let q = self.labels.len() as u32;
@@ -210,6 +216,15 @@ impl Timestamps {
 
     /// Per-stage durations in milliseconds, in recording order (after the work finished).
     pub fn stages(&self) -> Result<Vec<(String, f64)>> {
+        if self.dropped > 0 {
+            return Err(Error::Invalid(format!(
+                "{} timestamp marks after `{}` were dropped: the pool holds {} \
+                 (Timestamps::new)",
+                self.dropped,
+                self.labels.last().map_or("", |l| l.as_str()),
+                self.capacity
+            )));
+        }
         let n = self.labels.len();
         if n < 2 {
             return Ok(Vec::new());

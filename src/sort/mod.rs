@@ -10,11 +10,15 @@
 //! caller's primary and alternate buffers → a copy when an odd number of passes was
 //! skipped, so the result is where the recorded passes say.
 //!
-//! Two pass kernels ([`SortPass`]): `glsl/sort/onesweep.glsl` scatters each key straight
+//! Pass kernels ([`SortPass`]): `glsl/sort/onesweep.glsl` scatters each key straight
 //! to its destination (the fastest on lavapipe, where a write is a CPU store), and
 //! `glsl/sort/onesweep_coalesced.glsl` stages the tile in shared memory in sorted order
 //! and writes runs (what a GPU's memory system needs). [`SortPass::for_device`] picks
-//! from the device's type, subgroup size and shared memory.
+//! from the device's type, subgroup size and shared memory. The reduce-then-scan passes
+//! (`s128`, `s256`: [`SortPass::reduce_then_scan`]) run the coalesced pass without
+//! look-back, after a count of every tile's digits and a scan of the counts over the
+//! tiles (`glsl/sort/tile_count.glsl`, `tile_scan.comp`): two more dispatches and one
+//! more read of the keys per pass, and no workgroup ever waits on another.
 
 use std::ops::Range;
 
@@ -98,6 +102,40 @@ struct PassPush {
 push_constants!(SORT_ONESWEEP_VARIANTS, PassPush);
 push_constants!(SORT_ONESWEEP_C128_VARIANTS, PassPush);
 push_constants!(SORT_ONESWEEP_C256_VARIANTS, PassPush);
+push_constants!(SORT_SCANPASS_S128_VARIANTS, PassPush);
+push_constants!(SORT_SCANPASS_S256_VARIANTS, PassPush);
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct TileCountPush {
+    keys_in: u64,
+    keys_out: u64,
+    state: u64,
+    counts: u64,
+    shift: u32,
+    bits: u32,
+    pass_index: u32,
+    generic_rank: u32,
+}
+push_constants!(SORT_TILE_COUNT_S128_VARIANTS, TileCountPush);
+push_constants!(SORT_TILE_COUNT_S256_VARIANTS, TileCountPush);
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct TileScanPush {
+    state: u64,
+    counts: u64,
+    pass_index: u32,
+    tile_size: u32,
+}
+push_constants!(SORT_TILE_SCAN, TileScanPush);
+
+/// The kernels a reduce-then-scan pass adds: tile counts (u64, u32 keys), their scan.
+struct ScanKernels {
+    count: Kernel,
+    count32: Kernel,
+    scan: Kernel,
+}
 
 /// Where the element count of a run comes from.
 #[derive(Clone, Copy)]
@@ -180,6 +218,8 @@ pub struct RadixSort {
     kind: SortPass,
     pass: Kernel,
     pass32: Kernel,
+    /// Reduce-then-scan passes only.
+    scan: Option<ScanKernels>,
     generic_rank: bool,
     skip_constant: bool,
     spin_limit: Option<u32>,
@@ -194,9 +234,13 @@ impl RadixSort {
     /// Largest look-back window (LB_WINDOW in glsl/sort/onesweep_coalesced.glsl).
     pub const MAX_LOOKBACK_WINDOW: u32 = glsl::LB_WINDOW;
 
-    /// The sort with the device's pass kernel ([`SortPass::for_device`]).
+    /// The sort with the device's pass kernel ([`SortPass::for_device`]), or the one
+    /// `SVRASTER_SORT_PASS` names (`direct`, `c128`, `c256`, `s128`, `s256`), so that
+    /// every sort of a run — frames, training, `bench` — can be measured with another
+    /// pass kernel.
     pub fn new(ctx: &Context, capacity: u32) -> Result<Self> {
-        Self::with_pass(ctx, capacity, SortPass::for_device(ctx.info()))
+        let pass = SortPass::for_run(ctx.info()).map_err(Error::Invalid)?;
+        Self::with_pass(ctx, capacity, pass)
     }
 
     /// The sort with a chosen pass kernel (tests, `bench sort --pass`).
@@ -221,6 +265,14 @@ impl RadixSort {
         }
         let tiles = capacity.div_ceil(MIN_TILE).max(1) as u64;
         let [pass, pass32] = kind.kernels();
+        let scan = match kind.count_kernels() {
+            Some([count, count32]) => Some(ScanKernels {
+                count: Kernel::new(ctx, count)?,
+                count32: Kernel::new(ctx, count32)?,
+                scan: Kernel::new(ctx, &kernels::SORT_TILE_SCAN)?,
+            }),
+            None => None,
+        };
         Ok(RadixSort {
             ctx: ctx.clone(),
             run: RunState::new(ctx, "radix-sort", capacity, tiles * 256)?,
@@ -231,6 +283,7 @@ impl RadixSort {
             kind,
             pass: Kernel::new(ctx, pass)?,
             pass32: Kernel::new(ctx, pass32)?,
+            scan,
             generic_rank: false,
             skip_constant: true,
             spin_limit: None,
@@ -420,6 +473,45 @@ impl RadixSort {
             } else {
                 (bufs.keys_alt, bufs.values_alt, bufs.keys, bufs.values)
             };
+            let bits_p = (bits.end - shift).min(8);
+            if let Some(sk) = &self.scan {
+                // Reduce-then-scan: every tile's digit counts, then their prefixes over
+                // the tiles, into the status words the pass reads.
+                let count = match width {
+                    KeyWidth::U64 => &sk.count,
+                    KeyWidth::U32 => &sk.count32,
+                };
+                count.dispatch_indirect(
+                    cmd,
+                    &TileCountPush {
+                        keys_in: ki.address(),
+                        keys_out: ko.address(),
+                        state,
+                        counts: self.run.status.address(),
+                        shift,
+                        bits: bits_p,
+                        pass_index: p,
+                        generic_rank: self.generic_rank as u32,
+                    },
+                    self.run.state.raw(),
+                    ST_PASS_ARGS + 12 * p as u64,
+                );
+                recorder::barrier(ctx, cmd);
+                sk.scan.dispatch(
+                    cmd,
+                    &TileScanPush {
+                        state,
+                        counts: self.run.status.address(),
+                        pass_index: p,
+                        tile_size: tile,
+                    },
+                    [256, 1, 1],
+                );
+                recorder::barrier(ctx, cmd);
+                if let Some(t) = ts.as_deref_mut() {
+                    t.mark(cmd, &format!("sort.count{p}"));
+                }
+            }
             let push = PassPush {
                 keys_in: ki.address(),
                 vals_in: vi.address(),
@@ -428,7 +520,7 @@ impl RadixSort {
                 state,
                 status: self.run.status.address(),
                 shift,
-                bits: (bits.end - shift).min(8),
+                bits: bits_p,
                 pass_index: p,
                 spin_limit: spin,
                 generic_rank: self.generic_rank as u32,

@@ -1,4 +1,4 @@
-//! The two kernels that run a digit pass of the sort, and which one a device takes.
+//! The kernels that run a digit pass of the sort, and which one a device takes.
 
 use super::SORT_TILE;
 use crate::gpu::{kernels, DeviceInfo, KernelSource};
@@ -19,14 +19,23 @@ pub enum SortPass {
     /// `onesweep_coalesced.glsl` with 256 invocations × 15 keys: subgroups of ≥ 16
     /// lanes and ~34 KiB of shared memory.
     Coalesced256,
+    /// Reduce-then-scan with `Coalesced128`'s tiles: per digit pass `tile_count.glsl`
+    /// counts every tile's digits, `tile_scan.comp` sums them over the tiles, and the
+    /// coalesced pass reads its offsets instead of looking back (no workgroup waits on
+    /// another; the keys are read twice per pass). Any subgroup size.
+    Scan128,
+    /// Reduce-then-scan with `Coalesced256`'s tiles.
+    Scan256,
 }
 
 impl SortPass {
     /// Every pass kernel, for tests and `bench sort --pass`.
-    pub const ALL: [SortPass; 3] = [
+    pub const ALL: [SortPass; 5] = [
         SortPass::Direct,
         SortPass::Coalesced128,
         SortPass::Coalesced256,
+        SortPass::Scan128,
+        SortPass::Scan256,
     ];
 
     /// The pass for a device: the direct one on CPU devices (a write there is a store
@@ -44,20 +53,41 @@ impl SortPass {
         }
     }
 
+    /// The pass every sort of this process takes ([`crate::sort::RadixSort::new`]): the
+    /// one `SVRASTER_SORT_PASS` names, if set (to measure frames and training with
+    /// another pass kernel), else [`SortPass::for_device`].
+    pub fn for_run(info: &DeviceInfo) -> Result<SortPass, String> {
+        match std::env::var("SVRASTER_SORT_PASS") {
+            Ok(name) if !name.trim().is_empty() => name
+                .trim()
+                .parse::<SortPass>()
+                .map_err(|e| format!("SVRASTER_SORT_PASS={name}: {e}")),
+            _ => Ok(SortPass::for_device(info)),
+        }
+    }
+
     /// Name in reports and on the command line.
     pub fn name(self) -> &'static str {
         match self {
             SortPass::Direct => "direct",
             SortPass::Coalesced128 => "c128",
             SortPass::Coalesced256 => "c256",
+            SortPass::Scan128 => "s128",
+            SortPass::Scan256 => "s256",
         }
     }
 
     fn invocations(self) -> u32 {
         match self {
-            SortPass::Direct | SortPass::Coalesced128 => 128,
-            SortPass::Coalesced256 => 256,
+            SortPass::Direct | SortPass::Coalesced128 | SortPass::Scan128 => 128,
+            SortPass::Coalesced256 | SortPass::Scan256 => 256,
         }
+    }
+
+    /// Whether the pass takes its offsets from a count and a scan over the tiles
+    /// (no decoupled look-back).
+    pub fn reduce_then_scan(self) -> bool {
+        matches!(self, SortPass::Scan128 | SortPass::Scan256)
     }
 
     /// Keys per workgroup (tile).
@@ -71,8 +101,8 @@ impl SortPass {
     /// Smallest subgroup size the kernel supports (its shared histogram rows).
     pub(super) fn min_subgroup(self) -> u32 {
         match self {
-            SortPass::Direct | SortPass::Coalesced128 => 8,
-            SortPass::Coalesced256 => 16,
+            SortPass::Direct | SortPass::Coalesced128 | SortPass::Scan128 => 8,
+            SortPass::Coalesced256 | SortPass::Scan256 => 16,
         }
     }
 
@@ -101,6 +131,17 @@ impl SortPass {
             SortPass::Direct => kernels::SORT_ONESWEEP_VARIANTS,
             SortPass::Coalesced128 => kernels::SORT_ONESWEEP_C128_VARIANTS,
             SortPass::Coalesced256 => kernels::SORT_ONESWEEP_C256_VARIANTS,
+            SortPass::Scan128 => kernels::SORT_SCANPASS_S128_VARIANTS,
+            SortPass::Scan256 => kernels::SORT_SCANPASS_S256_VARIANTS,
+        }
+    }
+
+    /// The tile-count kernels of a reduce-then-scan pass (u64, u32 keys).
+    pub(super) fn count_kernels(self) -> Option<[&'static KernelSource; 2]> {
+        match self {
+            SortPass::Scan128 => Some(kernels::SORT_TILE_COUNT_S128_VARIANTS),
+            SortPass::Scan256 => Some(kernels::SORT_TILE_COUNT_S256_VARIANTS),
+            _ => None,
         }
     }
 }
@@ -111,6 +152,9 @@ impl std::str::FromStr for SortPass {
         SortPass::ALL
             .into_iter()
             .find(|p| p.name() == s)
-            .ok_or_else(|| format!("unknown sort pass `{s}`: one of direct, c128, c256"))
+            .ok_or_else(|| {
+                let names: Vec<&str> = SortPass::ALL.iter().map(|p| p.name()).collect();
+                format!("unknown sort pass `{s}`: one of {}", names.join(", "))
+            })
     }
 }
