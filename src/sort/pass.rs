@@ -17,7 +17,7 @@ pub enum SortPass {
     /// `onesweep_coalesced.glsl` with 128 invocations × 15 keys: any subgroup size.
     Coalesced128,
     /// `onesweep_coalesced.glsl` with 256 invocations × 15 keys: subgroups of ≥ 16
-    /// lanes and ~34 KiB of shared memory.
+    /// lanes and 32 852 bytes of shared memory (just over 32 KiB).
     Coalesced256,
     /// Reduce-then-scan with `Coalesced128`'s tiles: per digit pass `tile_count.glsl`
     /// counts every tile's digits, `tile_scan.comp` sums them over the tiles, and the
@@ -113,8 +113,9 @@ impl SortPass {
         let words = match self {
             // s_tile, s_rows, s_base, s_fallback, lb_vote
             SortPass::Direct => 1 + max_sg * 256 + 2 * 256 + 1,
-            // s_tile, s_mem, s_local, s_base, s_part, s_jmax, lb_vote
-            _ => 1 + (max_sg * 256).max(2 * self.tile()) + 2 * 256 + max_sg + 2,
+            // s_tile, s_mem, s_local, s_base, s_part, s_jmax, s_lb[2], lb_vote (the
+            // reduce-then-scan passes declare them too; their compiler may drop some)
+            _ => 1 + (max_sg * 256).max(2 * self.tile()) + 2 * 256 + max_sg + 4,
         };
         words * 4
     }
