@@ -160,40 +160,39 @@ pub fn families() -> Vec<Family> {
             fixed: ("", vec![d("WG", wg), d("KPT", 15), d("MIN_SG", min_sg)]),
         });
     }
-    for (wg, min_sg) in [(256, 16), (128, 8)] {
+    // The reduce-then-scan passes: the coalesced pass reading prefixes, and its counts.
+    for (pass, count, wg, min_sg) in [
+        (
+            ("SORT_SCANPASS_S256", "sort/scanpass_s256"),
+            ("SORT_TILE_COUNT_S256", "sort/tile_count_s256"),
+            256,
+            16,
+        ),
+        (
+            ("SORT_SCANPASS_S128", "sort/scanpass_s128"),
+            ("SORT_TILE_COUNT_S128", "sort/tile_count_s128"),
+            128,
+            8,
+        ),
+    ] {
         let fixed = vec![d("WG", wg), d("KPT", 15), d("MIN_SG", min_sg)];
-        f.push(Family {
-            name: if wg == 256 {
-                "SORT_SCANPASS_S256"
-            } else {
-                "SORT_SCANPASS_S128"
-            },
-            path: if wg == 256 {
-                "sort/scanpass_s256"
-            } else {
-                "sort/scanpass_s128"
-            },
-            body: "sort/onesweep_coalesced.glsl",
-            axes: vec![key_widths()],
-            name_order: vec![0],
-            fixed: ("", [fixed.clone(), vec![d("SCAN_PREFIX", 1)]].concat()),
-        });
-        f.push(Family {
-            name: if wg == 256 {
-                "SORT_TILE_COUNT_S256"
-            } else {
-                "SORT_TILE_COUNT_S128"
-            },
-            path: if wg == 256 {
-                "sort/tile_count_s256"
-            } else {
-                "sort/tile_count_s128"
-            },
-            body: "sort/tile_count.glsl",
-            axes: vec![key_widths()],
-            name_order: vec![0],
-            fixed: ("", fixed),
-        });
+        for ((name, path), body, extra) in [
+            (
+                pass,
+                "sort/onesweep_coalesced.glsl",
+                vec![d("SCAN_PREFIX", 1)],
+            ),
+            (count, "sort/tile_count.glsl", vec![]),
+        ] {
+            f.push(Family {
+                name,
+                path,
+                body,
+                axes: vec![key_widths()],
+                name_order: vec![0],
+                fixed: ("", [fixed.clone(), extra].concat()),
+            });
+        }
     }
     f
 }

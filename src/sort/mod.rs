@@ -31,6 +31,7 @@ use crate::gpu::{glsl, kernels, recorder, Buffer, Context, Kernel, Memory, Times
 
 mod pass;
 mod run_state;
+mod scan_pass;
 pub use pass::SortPass;
 use pass::MIN_TILE;
 pub(crate) use run_state::{
@@ -38,6 +39,7 @@ pub(crate) use run_state::{
 };
 pub use run_state::{ERR_LOOKBACK, ERR_OVERFLOW};
 use run_state::{ST_ARGS_CHUNKS, ST_ARGS_COPY, ST_PASS_ARGS, ST_SKIPPED};
+use scan_pass::ScanKernels;
 
 /// Elements per tile of the direct pass (WG × KPT in onesweep.glsl).
 pub const SORT_TILE: u32 = glsl::WG * glsl::KPT;
@@ -104,38 +106,6 @@ push_constants!(SORT_ONESWEEP_C128_VARIANTS, PassPush);
 push_constants!(SORT_ONESWEEP_C256_VARIANTS, PassPush);
 push_constants!(SORT_SCANPASS_S128_VARIANTS, PassPush);
 push_constants!(SORT_SCANPASS_S256_VARIANTS, PassPush);
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct TileCountPush {
-    keys_in: u64,
-    keys_out: u64,
-    state: u64,
-    counts: u64,
-    shift: u32,
-    bits: u32,
-    pass_index: u32,
-    generic_rank: u32,
-}
-push_constants!(SORT_TILE_COUNT_S128_VARIANTS, TileCountPush);
-push_constants!(SORT_TILE_COUNT_S256_VARIANTS, TileCountPush);
-
-#[repr(C)]
-#[derive(Clone, Copy, Pod, Zeroable)]
-struct TileScanPush {
-    state: u64,
-    counts: u64,
-    pass_index: u32,
-    tile_size: u32,
-}
-push_constants!(SORT_TILE_SCAN, TileScanPush);
-
-/// The kernels a reduce-then-scan pass adds: tile counts (u64, u32 keys), their scan.
-struct ScanKernels {
-    count: Kernel,
-    count32: Kernel,
-    scan: Kernel,
-}
 
 /// Where the element count of a run comes from.
 #[derive(Clone, Copy)]
@@ -265,14 +235,10 @@ impl RadixSort {
         }
         let tiles = capacity.div_ceil(MIN_TILE).max(1) as u64;
         let [pass, pass32] = kind.kernels();
-        let scan = match kind.count_kernels() {
-            Some([count, count32]) => Some(ScanKernels {
-                count: Kernel::new(ctx, count)?,
-                count32: Kernel::new(ctx, count32)?,
-                scan: Kernel::new(ctx, &kernels::SORT_TILE_SCAN)?,
-            }),
-            None => None,
-        };
+        let scan = kind
+            .count_kernels()
+            .map(|k| ScanKernels::new(ctx, k))
+            .transpose()?;
         Ok(RadixSort {
             ctx: ctx.clone(),
             run: RunState::new(ctx, "radix-sort", capacity, tiles * 256)?,
@@ -477,37 +443,15 @@ impl RadixSort {
             if let Some(sk) = &self.scan {
                 // Reduce-then-scan: every tile's digit counts, then their prefixes over
                 // the tiles, into the status words the pass reads.
-                let count = match width {
-                    KeyWidth::U64 => &sk.count,
-                    KeyWidth::U32 => &sk.count32,
+                let digit = scan_pass::Digit {
+                    keys: (ki, ko),
+                    width,
+                    shift,
+                    bits: bits_p,
+                    pass_index: p,
+                    tile,
                 };
-                count.dispatch_indirect(
-                    cmd,
-                    &TileCountPush {
-                        keys_in: ki.address(),
-                        keys_out: ko.address(),
-                        state,
-                        counts: self.run.status.address(),
-                        shift,
-                        bits: bits_p,
-                        pass_index: p,
-                        generic_rank: self.generic_rank as u32,
-                    },
-                    self.run.state.raw(),
-                    ST_PASS_ARGS + 12 * p as u64,
-                );
-                recorder::barrier(ctx, cmd);
-                sk.scan.dispatch(
-                    cmd,
-                    &TileScanPush {
-                        state,
-                        counts: self.run.status.address(),
-                        pass_index: p,
-                        tile_size: tile,
-                    },
-                    [256, 1, 1],
-                );
-                recorder::barrier(ctx, cmd);
+                sk.record(ctx, cmd, &self.run, &digit, self.generic_rank);
                 if let Some(t) = ts.as_deref_mut() {
                     t.mark(cmd, &format!("sort.count{p}"));
                 }
