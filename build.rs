@@ -130,13 +130,15 @@ fn main() {
                     module,
                     "/// `{display}`\npub const {ident}: KernelSource = KernelSource {{\n    \
                      name: \"{name}\",\n    spirv: include_bytes!(\"{spv}\"),\n    \
-                     local_size: [{lx}, {ly}, {lz}],\n    push_size: {ps},\n}};\n",
+                     local_size: [{lx}, {ly}, {lz}],\n    push_size: {ps},\n    \
+                     shared_size: {ss},\n}};\n",
                     name = kernel,
                     spv = spv_path.display(),
                     lx = refl.local_size[0],
                     ly = refl.local_size[1],
                     lz = refl.local_size[2],
                     ps = refl.push_size,
+                    ss = refl.shared_size,
                 );
                 pushes.push(PushBlock {
                     kernel: ident.clone(),
@@ -247,6 +249,8 @@ fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
 struct Reflection {
     local_size: [u32; 3],
     push_size: u32,
+    /// Bytes of the Workgroup-storage (`shared`) variables, at their natural sizes.
+    shared_size: u32,
     /// Buffer-reference parameter blocks (structs of two or more members reached through
     /// a PhysicalStorageBuffer pointer; the one-member `U32s`-style array wrappers left
     /// out).
@@ -267,7 +271,9 @@ struct Block {
 /// Reflection with `rspirv`: the LocalSize execution mode, the byte size of the
 /// push-constant block (max over members of offset + size, following ArrayStride and
 /// nested structs; PhysicalStorageBuffer pointers are 8 bytes), and the layouts of the
-/// buffer-reference parameter blocks (named through the debug info).
+/// buffer-reference parameter blocks (named through the debug info), and the bytes of
+/// the `shared` variables (the sum of their natural sizes, as Vulkan's
+/// maxComputeSharedMemorySize counts them).
 fn reflect(words: &[u32]) -> Result<Reflection, String> {
     use rspirv::dr::Operand as O;
     use rspirv::spirv::{Decoration, ExecutionMode, Op, StorageClass};
@@ -345,6 +351,7 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
     let mut types: HashMap<u32, Ty> = HashMap::new();
     let mut constants: HashMap<u32, u32> = HashMap::new();
     let mut push_var_type = None;
+    let mut shared_vars = Vec::new();
     for i in &m.types_global_values {
         let Some(id) = i.result_id else { continue };
         let ops = i.operands.as_slice();
@@ -367,6 +374,10 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
             }
             (Op::Variable, [O::StorageClass(StorageClass::PushConstant), ..]) => {
                 push_var_type = i.result_type;
+                continue;
+            }
+            (Op::Variable, [O::StorageClass(StorageClass::Workgroup), ..]) => {
+                shared_vars.extend(i.result_type);
                 continue;
             }
             (op, _) if format!("{op:?}").starts_with("Type") => Ty::Other,
@@ -408,6 +419,35 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
         }
         go(id, &types, &constants, &offsets, &strides)
     };
+    // Shared variables have no explicit layout: scalars, vectors, arrays and structs
+    // at their natural (tightly packed) sizes.
+    fn natural(
+        id: u32,
+        types: &HashMap<u32, Ty>,
+        consts: &HashMap<u32, u32>,
+    ) -> Result<u32, String> {
+        match types.get(&id).ok_or("unknown type id")? {
+            Ty::Scalar(b) => Ok(*b),
+            Ty::Vector(c, n) => Ok(natural(*c, types, consts)? * n),
+            Ty::Array(e, len) => {
+                let n = *consts
+                    .get(len)
+                    .ok_or("shared array length is not a constant")?;
+                Ok(natural(*e, types, consts)? * n)
+            }
+            Ty::Struct(ms) => ms.iter().map(|t| natural(*t, types, consts)).sum(),
+            Ty::Pointer(..) | Ty::Other => Err("unsupported type in shared memory".into()),
+        }
+    }
+    let mut shared_size = 0;
+    for ptr in shared_vars {
+        match types.get(&ptr) {
+            Some(Ty::Pointer(StorageClass::Workgroup, pointee)) => {
+                shared_size += natural(*pointee, &types, &constants)?;
+            }
+            _ => return Err("shared variable is not a Workgroup pointer".into()),
+        }
+    }
     let (push_size, push_members) = match push_var_type {
         None => (0, Vec::new()),
         Some(ptr) => match types.get(&ptr) {
@@ -466,6 +506,7 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
     Ok(Reflection {
         local_size: local_size.ok_or("no LocalSize execution mode (use literal local_size_x)")?,
         push_size,
+        shared_size,
         blocks,
         push_members,
     })

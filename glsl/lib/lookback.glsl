@@ -32,15 +32,20 @@ uint64_t lb_load(U64s s, uint i) {
     return atomicLoad(s.v[i], gl_ScopeDevice, gl_StorageSemanticsBuffer, gl_SemanticsRelaxed);
 }
 
-// Workgroup-wide OR of `x`. Must be called in workgroup-uniform control flow.
+// Workgroup-wide OR of `x`. Must be called in workgroup-uniform control flow. Its shared
+// word is `lb_vote` unless the kernel defines LB_VOTE as a word of its own that is idle
+// while it calls this (onesweep_coalesced.glsl, to fit 32 KiB).
+#ifndef LB_VOTE
 shared uint lb_vote;
+#define LB_VOTE lb_vote
+#endif
 uint lb_workgroup_or(uint x) {
     barrier();
-    if (gl_LocalInvocationIndex == 0) lb_vote = 0;
+    if (gl_LocalInvocationIndex == 0) LB_VOTE = 0;
     barrier();
     uint sx = subgroupOr(x);
-    if (subgroupElect() && sx != 0) atomicOr(lb_vote, sx);
+    if (subgroupElect() && sx != 0) atomicOr(LB_VOTE, sx);
     barrier();
-    return lb_vote;
+    return LB_VOTE;
 }
 #endif

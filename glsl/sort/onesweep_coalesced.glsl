@@ -33,9 +33,6 @@
 #extension GL_KHR_shader_subgroup_shuffle : require
 #extension GL_EXT_control_flow_attributes : require
 #include "pass_state.glsl"
-#include "lookback.glsl"
-#include "sort_key.glsl"
-#include "sort_rank.glsl"
 
 #define TILE (WG * KPT)
 #define RADIX 256
@@ -43,8 +40,36 @@
 #define MAX_SG (WG / MIN_SG)  // subgroups per workgroup at most
 #define ROWS_WORDS (MAX_SG * RADIX)
 #define STAGE_WORDS (2 * TILE) // u64 keys as two words, or u32 keys then values
-#define MEM_WORDS (ROWS_WORDS > STAGE_WORDS ? ROWS_WORDS : STAGE_WORDS)
 #define LB_WINDOW 8           // most look-back words a digit reads at once
+
+// Shared memory: 32 768 bytes for 256 invocations, so that the pass fits a 32 KiB
+// device (lavapipe, where its 16-lane subgroups then run it in tests). The scalars live
+// in words that are idle while they are used (src/sort/pass.rs shared_bytes mirrors it):
+// - the tile index in s_base[0]: read once after the first barrier; s_base is written
+//   first after step 2's barrier;
+// - s_part (step 3) past the subgroup rows in s_mem, where the tile is staged only in
+//   step 4, when there is room there (256 invocations; 128 have no spare words);
+// - the look-back's vote, stalled-tile and counter words in s_local, which every
+//   invocation has read into registers before the look-back starts (step 4).
+#if STAGE_WORDS >= ROWS_WORDS + MAX_SG
+#define MEM_WORDS STAGE_WORDS
+#define S_PART(s) s_mem[ROWS_WORDS + (s)]
+#else
+#define MEM_WORDS (ROWS_WORDS > STAGE_WORDS ? ROWS_WORDS : STAGE_WORDS)
+shared uint s_part[MAX_SG];   // subgroup sums of the digit scan
+#define S_PART(s) s_part[s]
+#endif
+shared uint s_mem[MEM_WORDS];  // subgroup histogram rows, then the staged tile
+shared uint s_local[RADIX];    // tile-local start of each digit (until step 4)
+shared uint s_base[RADIX];     // fallback counts during look-back; then global base - local start
+#define S_TILE s_base[0]
+#define LB_VOTE s_local[0]
+#define S_JMAX s_local[1]      // look-back: the nearest tile a digit stalled on
+#define S_LB(i) s_local[2 + (i)] // look-back steps and extra polls of the workgroup
+
+#include "lookback.glsl"
+#include "sort_key.glsl"
+#include "sort_rank.glsl"
 layout(local_size_x = WG) in;
 
 layout(push_constant) uniform Push {
@@ -62,33 +87,21 @@ layout(push_constant) uniform Push {
     uint lb_window;   // look-back: predecessors' words read at once per digit (1..LB_WINDOW)
 } pc;
 
-shared uint s_tile;
-shared uint s_mem[MEM_WORDS];  // subgroup histogram rows, then the staged tile
-shared uint s_local[RADIX];    // tile-local start of each digit
-shared uint s_base[RADIX];     // fallback counts during look-back; then global base - local start
-shared uint s_part[MAX_SG];    // subgroup sums of the digit scan
-shared uint s_jmax;            // look-back: the nearest tile a digit stalled on
-shared uint s_lb[2];           // look-back steps and extra polls of the workgroup
-
 void main() {
     uint t = gl_LocalInvocationID.x;
 #ifndef SCAN_PREFIX
-    if (t == 0u) {
-        s_tile = atomicAdd(pc.state.v[ST_TILE_CTR + pc.pass_index], 1u);
-        s_lb[0] = 0u;
-        s_lb[1] = 0u;
-    }
+    if (t == 0u) S_TILE = atomicAdd(pc.state.v[ST_TILE_CTR + pc.pass_index], 1u);
 #endif
     for (uint i = t; i < ROWS_WORDS; i += WG) s_mem[i] = 0u;
     barrier();
 #ifdef SCAN_PREFIX
     uint tile = linear_group_id(); // no look-back: tiles need not start in order
 #else
-    uint tile = s_tile;
+    uint tile = S_TILE;
 #endif
     uint n = pc.state.v[ST_N];
     uint ntiles = (n + TILE - 1u) / TILE;
-    if (tile >= ntiles) return; // uniform: every invocation read the same s_tile
+    if (tile >= ntiles) return; // uniform: every invocation read the same tile index
     uint tile_n = min(TILE, n - tile * TILE);
     // A skipped pass before this one (constant digit, sort/hist_scan.comp) swaps the
     // ping-pong direction of every later pass.
@@ -166,9 +179,9 @@ void main() {
         sum += mine[q];
     }
     uint excl = subgroupExclusiveAdd(sum);
-    if (lane == sgsize - 1u) s_part[sg] = excl + sum;
+    if (lane == sgsize - 1u) S_PART(sg) = excl + sum;
     barrier();
-    for (uint s = 0u; s < sg; s++) excl += s_part[s];
+    for (uint s = 0u; s < sg; s++) excl += S_PART(s);
     [[unroll]] for (uint q = 0u; q < DPT; q++) {
         s_local[t * DPT + q] = excl;
         excl += mine[q];
@@ -181,7 +194,15 @@ void main() {
         uint d = uint(k[r] >> pc.shift) & digit_mask;
         loc[r] += s_mem[sg * RADIX + d] + s_local[d];
     }
+    uint local_start[DPT]; // s_local's words take the look-back's scalars from here on
+    [[unroll]] for (uint q = 0u; q < DPT; q++) local_start[q] = s_local[t + q * WG];
     barrier();
+#ifndef SCAN_PREFIX
+    if (t == 0u) {
+        S_LB(0) = 0u;
+        S_LB(1) = 0u;
+    }
+#endif
     [[unroll]] for (uint r = 0u; r < KPT; r++) {
         if (chunk + r * sgsize + lane < n) {
 #ifdef KEY32
@@ -282,14 +303,14 @@ void main() {
                     published[q] = true;
                 }
             }
-            if (t == 0u) s_jmax = 0u;
+            if (t == 0u) S_JMAX = 0u;
             if (lb_workgroup_or(stalled ? 1u : 0u) == 0u) break;
             [[unroll]] for (uint q = 0u; q < DPT; q++)
-                if (!done[q]) atomicMax(s_jmax, jj[q] + 1u);
+                if (!done[q]) atomicMax(S_JMAX, jj[q] + 1u);
             for (uint i = t; i < RADIX; i += WG) s_base[i] = 0u;
             if (t == 0u) atomicAdd(pc.state.v[ST_LB_FALLBACKS], 1u);
             barrier();
-            uint j = s_jmax - 1u;
+            uint j = S_JMAX - 1u;
             for (uint r = 0u; r < KPT; r++) {
                 KeyT key = keys_in.v[j * TILE + r * WG + t];
                 atomicAdd(s_base[uint(key >> pc.shift) & digit_mask], 1u);
@@ -302,25 +323,25 @@ void main() {
                     else jj[q] = j - 1u;
                 }
             }
-            barrier(); // s_base and s_jmax are reused by the next round
+            barrier(); // s_base and S_JMAX are reused by the next round
         }
         // Counters (bench sort): one shared add per subgroup, one global add per tile.
         uint sst = subgroupAdd(lb_steps), swt = subgroupAdd(lb_waits);
         if (subgroupElect()) {
-            atomicAdd(s_lb[0], sst);
-            atomicAdd(s_lb[1], swt);
+            atomicAdd(S_LB(0), sst);
+            atomicAdd(S_LB(1), swt);
         }
         barrier();
         if (t == 0u) {
-            atomicAdd(pc.state.v[ST_LB_STEPS], s_lb[0]);
-            atomicAdd(pc.state.v[ST_LB_WAITS], s_lb[1]);
+            atomicAdd(pc.state.v[ST_LB_STEPS], S_LB(0));
+            atomicAdd(pc.state.v[ST_LB_WAITS], S_LB(1));
         }
     }
 #endif
     uint hist_base = ST_HIST + pc.pass_index * RADIX;
     [[unroll]] for (uint q = 0u; q < DPT; q++) {
         uint d = t + q * WG;
-        s_base[d] = pc.state.v[hist_base + d] + before[q] - s_local[d];
+        s_base[d] = pc.state.v[hist_base + d] + before[q] - local_start[q];
     }
     barrier();
 

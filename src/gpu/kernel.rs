@@ -22,6 +22,8 @@ pub struct KernelSource {
     pub local_size: [u32; 3],
     /// Bytes of the push-constant block (0 if none).
     pub push_size: u32,
+    /// Bytes of its `shared` variables (reflected by build.rs from the SPIR-V).
+    pub shared_size: u32,
 }
 
 /// The pipelines of a family of variants (`kernels::<FAMILY>_VARIANTS`, two axes), in
@@ -71,6 +73,17 @@ fn make_pipeline(
     source: &'static KernelSource,
 ) -> Result<(vk::Pipeline, vk::PipelineLayout)> {
     let dev = ctx.device();
+    let limit = ctx.info().max_compute_shared_memory_size;
+    if source.shared_size > limit {
+        return Err(Error::Gpu(format!(
+            "kernel {} declares {} bytes of shared memory; {} allows {} \
+             (the caller should have chosen a smaller variant)",
+            source.name,
+            source.shared_size,
+            ctx.info().name,
+            limit
+        )));
+    }
     let code = ash::util::read_spv(&mut std::io::Cursor::new(source.spirv))
         .map_err(|e| Error::Gpu(format!("kernel {}: bad SPIR-V: {e}", source.name)))?;
     let module = unsafe {

@@ -17,7 +17,7 @@ pub enum SortPass {
     /// `onesweep_coalesced.glsl` with 128 invocations × 15 keys: any subgroup size.
     Coalesced128,
     /// `onesweep_coalesced.glsl` with 256 invocations × 15 keys: subgroups of ≥ 16
-    /// lanes and 32 852 bytes of shared memory (just over 32 KiB).
+    /// lanes and 32 768 bytes of shared memory (32 KiB exactly).
     Coalesced256,
     /// Reduce-then-scan with `Coalesced128`'s tiles: per digit pass `tile_count.glsl`
     /// counts every tile's digits, `tile_scan.comp` sums them over the tiles, and the
@@ -99,25 +99,23 @@ impl SortPass {
     }
 
     /// Smallest subgroup size the kernel supports (its shared histogram rows).
-    pub(super) fn min_subgroup(self) -> u32 {
+    pub fn min_subgroup(self) -> u32 {
         match self {
             SortPass::Direct | SortPass::Coalesced128 | SortPass::Scan128 => 8,
             SortPass::Coalesced256 | SortPass::Scan256 => 16,
         }
     }
 
-    /// Bytes of shared memory the kernel declares (mirrors the arrays of its GLSL).
+    /// Bytes of shared memory its kernels declare (reflected from their SPIR-V; the
+    /// largest of the pass and, for reduce-then-scan, the tile count).
     pub fn shared_bytes(self) -> u32 {
-        let wg = self.invocations();
-        let max_sg = wg / self.min_subgroup();
-        let words = match self {
-            // s_tile, s_rows, s_base, s_fallback, lb_vote
-            SortPass::Direct => 1 + max_sg * 256 + 2 * 256 + 1,
-            // s_tile, s_mem, s_local, s_base, s_part, s_jmax, s_lb[2], lb_vote (the
-            // reduce-then-scan passes declare them too; their compiler may drop some)
-            _ => 1 + (max_sg * 256).max(2 * self.tile()) + 2 * 256 + max_sg + 4,
-        };
-        words * 4
+        let count = self.count_kernels().into_iter().flatten();
+        self.kernels()
+            .into_iter()
+            .chain(count)
+            .map(|k| k.shared_size)
+            .max()
+            .unwrap_or(0)
     }
 
     /// Whether the device can run it.
@@ -157,5 +155,34 @@ impl std::str::FromStr for SortPass {
                 let names: Vec<&str> = SortPass::ALL.iter().map(|p| p.name()).collect();
                 format!("unknown sort pass `{s}`: one of {}", names.join(", "))
             })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::SortPass;
+
+    /// build.rs reflects each kernel's shared memory from its SPIR-V; the direct pass's
+    /// arrays counted by hand check that reflection, and the 256-invocation passes must
+    /// stay within 32 KiB, lavapipe's limit, so that its 16-lane subgroups run them in
+    /// tests (the GPU default has no other check off a GPU).
+    #[test]
+    fn shared_memory_is_reflected_and_the_256_passes_fit_32_kib() {
+        // s_tile, 16 subgroup rows of 256 digits, s_base, s_fallback, lb_vote
+        assert_eq!(
+            SortPass::Direct.shared_bytes(),
+            (1 + 16 * 256 + 2 * 256 + 1) * 4
+        );
+        // s_mem (the staged tile: 2 words per key), s_local, s_base; the rest aliased
+        let c256 = 2 * SortPass::Coalesced256.tile() + 2 * 256;
+        assert_eq!(SortPass::Coalesced256.shared_bytes(), c256 * 4);
+        for p in [SortPass::Coalesced256, SortPass::Scan256] {
+            assert!(
+                p.shared_bytes() <= 32 * 1024,
+                "{}: {} bytes",
+                p.name(),
+                p.shared_bytes()
+            );
+        }
     }
 }
