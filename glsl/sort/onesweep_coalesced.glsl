@@ -44,7 +44,8 @@
 
 // Shared memory: 32 768 bytes for 256 invocations, so that the pass fits a 32 KiB
 // device (lavapipe, where its 16-lane subgroups then run it in tests). The scalars live
-// in words that are idle while they are used (src/sort/pass.rs shared_bytes mirrors it):
+// in words that are idle while they are used (build.rs reflects the total; a test in
+// src/sort/pass.rs holds it to 32 KiB):
 // - the tile index in s_base[0]: read once after the first barrier; s_base is written
 //   first after step 2's barrier;
 // - s_part (step 3) past the subgroup rows in s_mem, where the tile is staged only in
