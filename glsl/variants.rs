@@ -134,65 +134,51 @@ pub fn families() -> Vec<Family> {
             fixed: ("", vec![]),
         });
     }
-    for (name, path, body) in [
-        ("SORT_HISTOGRAM", "sort/histogram", "sort/histogram.glsl"),
-        ("SORT_ONESWEEP", "sort/onesweep", "sort/onesweep.glsl"),
-    ] {
-        f.push(Family {
-            name,
-            path,
-            body,
-            axes: vec![key_widths()],
-            name_order: vec![0],
-            fixed: ("", vec![]),
-        });
-    }
-    for (name, path, wg, min_sg) in [
-        ("SORT_ONESWEEP_C256", "sort/onesweep_c256", 256, 16),
-        ("SORT_ONESWEEP_C128", "sort/onesweep_c128", 128, 8),
-    ] {
-        f.push(Family {
-            name,
-            path,
-            body: "sort/onesweep_coalesced.glsl",
-            axes: vec![key_widths()],
-            name_order: vec![0],
-            fixed: ("", vec![d("WG", wg), d("KPT", 15), d("MIN_SG", min_sg)]),
-        });
-    }
-    // The reduce-then-scan passes: the coalesced pass reading prefixes, and its counts.
-    for (pass, count, wg, min_sg) in [
+    // The sort's kernels: each in a u64- and a u32-key variant.
+    let sort = |name, path, body, fixed| Family {
+        name,
+        path,
+        body,
+        axes: vec![key_widths()],
+        name_order: vec![0],
+        fixed: ("", fixed),
+    };
+    f.push(sort(
+        "SORT_HISTOGRAM",
+        "sort/histogram",
+        "sort/histogram.glsl",
+        vec![],
+    ));
+    f.push(sort(
+        "SORT_ONESWEEP",
+        "sort/onesweep",
+        "sort/onesweep.glsl",
+        vec![],
+    ));
+    // The coalesced passes, and the reduce-then-scan passes: the coalesced pass reading
+    // prefixes, and its tile counts.
+    let coalesced = "sort/onesweep_coalesced.glsl";
+    for (wg, min_sg, c, s, count) in [
         (
-            ("SORT_SCANPASS_S256", "sort/scanpass_s256"),
-            ("SORT_TILE_COUNT_S256", "sort/tile_count_s256"),
             256,
             16,
+            ("SORT_ONESWEEP_C256", "sort/onesweep_c256"),
+            ("SORT_SCANPASS_S256", "sort/scanpass_s256"),
+            ("SORT_TILE_COUNT_S256", "sort/tile_count_s256"),
         ),
         (
-            ("SORT_SCANPASS_S128", "sort/scanpass_s128"),
-            ("SORT_TILE_COUNT_S128", "sort/tile_count_s128"),
             128,
             8,
+            ("SORT_ONESWEEP_C128", "sort/onesweep_c128"),
+            ("SORT_SCANPASS_S128", "sort/scanpass_s128"),
+            ("SORT_TILE_COUNT_S128", "sort/tile_count_s128"),
         ),
     ] {
         let fixed = vec![d("WG", wg), d("KPT", 15), d("MIN_SG", min_sg)];
-        for ((name, path), body, extra) in [
-            (
-                pass,
-                "sort/onesweep_coalesced.glsl",
-                vec![d("SCAN_PREFIX", 1)],
-            ),
-            (count, "sort/tile_count.glsl", vec![]),
-        ] {
-            f.push(Family {
-                name,
-                path,
-                body,
-                axes: vec![key_widths()],
-                name_order: vec![0],
-                fixed: ("", [fixed.clone(), extra].concat()),
-            });
-        }
+        let scan = [fixed.clone(), vec![d("SCAN_PREFIX", 1)]].concat();
+        f.push(sort(c.0, c.1, coalesced, fixed.clone()));
+        f.push(sort(s.0, s.1, coalesced, scan));
+        f.push(sort(count.0, count.1, "sort/tile_count.glsl", fixed));
     }
     f
 }
