@@ -20,11 +20,25 @@ fn profile_dir() -> PathBuf {
 
 /// Builds an example in this test's profile (`cargo test --test viewer` alone does not
 /// build examples; a no-op when it is up to date) and returns its path.
+///
+/// With the whole workspace selected, as `cargo test` at the root builds it: the
+/// dependencies' features are then unified as in that build, which has built the
+/// examples already, so this is a no-op there. Selecting the library package alone
+/// (`--features viewer` without `--workspace`) resolves other features for shared
+/// dependencies, recompiled 34 crates (~110 s on 2 cores, inside the suite) and made
+/// the next `cargo test` recompile them back.
 fn example(name: &str) -> PathBuf {
     let dir = profile_dir();
     let mut cmd = Command::new(env!("CARGO"));
-    cmd.args(["build", "--features", "viewer", "--example", name])
-        .current_dir(env!("CARGO_MANIFEST_DIR"));
+    cmd.args([
+        "build",
+        "--workspace",
+        "--features",
+        "svraster-vk/viewer",
+        "--example",
+        name,
+    ])
+    .current_dir(env!("CARGO_MANIFEST_DIR"));
     if dir.file_name().is_some_and(|n| n == "release") {
         cmd.arg("--release");
     }
