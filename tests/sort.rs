@@ -251,7 +251,8 @@ fn sort_low_byte_only() {
 /// subgroups `c256` and `s256` do not support, `direct`, `c128` and `s128`, which are
 /// the 256-invocation kernels' bodies with 128 invocations), with the shuffle and the
 /// ballot ranking, u64 and u32 keys, the look-back's recount fallback forced (spin limit
-/// 0) and not, look-back windows of 1, 3 and 8 words (coalesced passes), against the
+/// 0) and not, look-back windows of 1, 3 and 8 words and a back-off between polls
+/// (coalesced passes), against the
 /// reference; 2^20 keys with the device's settings and the last combination.
 #[test]
 fn sort_every_pass_kernel() {
@@ -261,24 +262,27 @@ fn sort_every_pass_kernel() {
         let mut h = Harness::with_pass(&ctx, 1 << 20, pass);
         assert_eq!(h.sort.pass(), pass);
         // Look-back windows (coalesced passes; the direct pass reads one word at a
-        // time): the device's, and 8 words with and without the recount fallback.
-        let windows: &[(bool, Option<u32>, Option<u32>)] = match pass {
+        // time): the device's, and 8 words with and without the recount fallback; the
+        // back-off between polls once (coalesced passes).
+        let windows: &[(bool, Option<u32>, Option<u32>, u32)] = match pass {
             SortPass::Direct => &[
-                (false, None, None),
-                (true, None, None),
-                (false, Some(0), None),
+                (false, None, None, 0),
+                (true, None, None, 0),
+                (false, Some(0), None, 0),
             ],
             // No look-back: its settings change nothing.
-            SortPass::Scan128 | SortPass::Scan256 => &[(false, None, None), (true, None, None)],
+            SortPass::Scan128 | SortPass::Scan256 => {
+                &[(false, None, None, 0), (true, None, None, 0)]
+            }
             _ => &[
-                (false, None, None),
-                (true, None, None),
-                (false, Some(0), None),
-                (false, None, Some(8)),
-                (true, Some(0), Some(3)),
+                (false, None, None, 0),
+                (true, None, None, 0),
+                (false, Some(0), None, 0),
+                (false, None, Some(8), 64),
+                (true, Some(0), Some(3), 0),
             ],
         };
-        for (i, &(generic, spin, window)) in windows.iter().enumerate() {
+        for (i, &(generic, spin, window, backoff)) in windows.iter().enumerate() {
             // 2^20 keys (hundreds of tiles: long look-back walks) with the device's
             // settings and the last, most adverse combination; the others up to 65 537
             // keys (17-35 tiles), which is where they differ (CI time: the test took
@@ -287,6 +291,7 @@ fn sort_every_pass_kernel() {
             h.sort.set_generic_rank(generic);
             h.sort.set_spin_limit(spin);
             h.sort.set_lookback_window(window).unwrap();
+            h.sort.set_lookback_backoff(backoff);
             for dist in [
                 Dist::Uniform,
                 Dist::ThreeValues,
@@ -302,7 +307,7 @@ fn sort_every_pass_kernel() {
                     let vals: Vec<u32> = (0..n as u32).collect();
                     let what = |bits: &str| {
                         format!(
-                            "pass {} generic {generic} spin {spin:?} window {window:?} {dist:?} n={n} {bits}",
+                            "pass {} generic {generic} spin {spin:?} window {window:?} backoff {backoff} {dist:?} n={n} {bits}",
                             pass.name()
                         )
                     };

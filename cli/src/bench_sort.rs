@@ -49,6 +49,10 @@ pub struct SortArgs {
     /// once, 1 to 8 (default the device's: 1 on CPUs, 4 on GPUs).
     #[arg(long)]
     window: Option<u32>,
+    /// ALU rounds a coalesced pass spends between two polls of an unpublished
+    /// look-back word (default 0: back to back; CUB sleeps between polls).
+    #[arg(long, default_value_t = 0)]
+    backoff: u32,
     /// Skip the CPU baseline (`sort_unstable` timed W + R times; sweeps of large sorts
     /// on a GPU machine). Every run is still verified.
     #[arg(long)]
@@ -104,6 +108,8 @@ struct SortReport {
     hist_groups: u32,
     /// Look-back words a digit reads at once (coalesced passes).
     lookback_window: u32,
+    /// ALU rounds between two polls of an unpublished look-back word (coalesced passes).
+    lookback_backoff: u32,
     passes: u32,
     /// Bit p set: pass p was skipped (its digit is the same in every key).
     skipped_passes: u32,
@@ -149,6 +155,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         spin,
         hist_groups,
         window,
+        backoff,
         no_baseline,
         seed,
         json,
@@ -234,6 +241,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         sorter.set_hist_groups(g);
     }
     sorter.set_lookback_window(window)?;
+    sorter.set_lookback_backoff(backoff);
     let scratch = SortScratch::new(ctx, n)?;
     let src_k = ctx.buffer_from("bench.keys.src", &keys)?;
     let src_v = ctx.buffer_from("bench.values.src", &values)?;
@@ -336,6 +344,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         spin_limit: spin.unwrap_or_else(|| ctx.info().lookback_spin_limit()),
         hist_groups: sorter.hist_groups(),
         lookback_window: sorter.lookback_window(),
+        lookback_backoff: sorter.lookback_backoff(),
         passes,
         skipped_passes: skipped,
         runs,

@@ -49,6 +49,8 @@ layout(push_constant) uniform Push {
     uint spin_limit;  // polls of a predecessor before the fallback
     uint generic_rank; // 1: rank with ballots on any subgroup size (tests)
     uint lb_window;   // the coalesced passes' look-back window (unused here: one word at a time)
+    uint lb_backoff;  // the coalesced passes' back-off between polls (unused here)
+    uint pad0;        // the block's size a multiple of 8 (the Rust mirror has no padding)
 } pc;
 
 shared uint s_tile;

@@ -86,6 +86,8 @@ layout(push_constant) uniform Push {
     uint spin_limit;  // polls of a predecessor before the fallback
     uint generic_rank; // 1: rank with ballots on any subgroup size (tests)
     uint lb_window;   // look-back: predecessors' words read at once per digit (1..LB_WINDOW)
+    uint lb_backoff;  // look-back: ALU rounds between two polls of an unpublished word
+    uint pad0;        // the block's size a multiple of 8 (the Rust mirror has no padding)
 } pc;
 
 void main() {
@@ -286,9 +288,19 @@ void main() {
                     uint idx = jj[q] * RADIX + d;
                     uint f = 0u;
                     uint s = 0u;
+                    uint idle = 0u;
                     for (; f == 0u && s < pc.spin_limit; s++) {
                         f = lb_flag(lb_load(pc.status, idx), tag);
+                        // Back-off: CUB's look-back sleeps between polls (__nanosleep)
+                        // so that waiting workgroups do not flood the memory system
+                        // the working ones need. SPIR-V has no sleep: ALU rounds that
+                        // no memory access waits on (0 by default).
+                        for (uint i = 0u; f == 0u && i < pc.lb_backoff; i++)
+                            idle = idle * 1664525u + 1013904223u;
                     }
+                    // Keeps the back-off's rounds from being optimised away (an OR
+                    // of 0: no effect whatever `idle` is).
+                    if (idle == 0x9e3779b9u) atomicOr(pc.state.v[ST_ERRORS], 0u);
                     lb_waits += s;
                     if (f == 0u) {
                         stalled = true;

@@ -100,6 +100,10 @@ struct PassPush {
     /// Coalesced passes: look-back words read at once per digit (the direct pass
     /// ignores it).
     lb_window: u32,
+    /// Coalesced passes: ALU rounds between two polls of an unpublished look-back word
+    /// (the direct pass ignores it).
+    lb_backoff: u32,
+    pad0: u32,
 }
 push_constants!(SORT_ONESWEEP_VARIANTS, PassPush);
 push_constants!(SORT_ONESWEEP_C128_VARIANTS, PassPush);
@@ -195,6 +199,7 @@ pub struct RadixSort {
     spin_limit: Option<u32>,
     hist_groups: u32,
     lookback_window: Option<u32>,
+    lookback_backoff: u32,
 }
 
 impl RadixSort {
@@ -255,6 +260,7 @@ impl RadixSort {
             spin_limit: None,
             hist_groups: HIST_GROUPS,
             lookback_window: None,
+            lookback_backoff: 0,
         })
     }
 
@@ -287,6 +293,21 @@ impl RadixSort {
     pub fn lookback_window(&self) -> u32 {
         self.lookback_window
             .unwrap_or_else(|| self.ctx.info().lookback_window())
+    }
+
+    /// ALU rounds a coalesced pass spends between two polls of a look-back word that is
+    /// not yet published (default 0: polls back to back). CUB's look-back sleeps
+    /// between polls so that waiting workgroups leave the memory system to the working
+    /// ones; SPIR-V has no sleep, so this is busy work with no memory access. The
+    /// direct pass ignores it; `bench sort --backoff` sweeps it (issue 33: does polling
+    /// slow the pass on a GPU?).
+    pub fn set_lookback_backoff(&mut self, rounds: u32) {
+        self.lookback_backoff = rounds;
+    }
+
+    /// The back-off the coalesced passes use ([`RadixSort::set_lookback_backoff`]).
+    pub fn lookback_backoff(&self) -> u32 {
+        self.lookback_backoff
     }
 
     /// The histogram's workgroup cap ([`RadixSort::set_hist_groups`]).
@@ -469,6 +490,8 @@ impl RadixSort {
                 spin_limit: spin,
                 generic_rank: self.generic_rank as u32,
                 lb_window: window,
+                lb_backoff: self.lookback_backoff,
+                pad0: 0,
             };
             pass.dispatch_indirect(
                 cmd,
