@@ -88,9 +88,9 @@ fn repeated_sort_eight_threads() {
     run("8", "c128");
     // The coalesced pass reading 8 look-back words at once: walks of several words
     // (steps > 1 per digit and tile) taken from one window; busy rounds between polls.
-    let v = run_with("8", "c128", &["--window", "8", "--backoff", "32"]);
+    let v = run_with("8", "c128", &["--window", "8", "--backoff", "16"]);
     assert_eq!(v["lookback_window"], 8, "{v}");
-    assert_eq!(v["lookback_backoff"], 32, "{v}");
+    assert_eq!(v["lookback_backoff"], 16, "{v}");
     assert!(
         v["lookback"]["steps_per_digit_tile"].as_f64().unwrap() > 1.0,
         "{v}"

@@ -202,6 +202,20 @@ pub struct RadixSort {
     lookback_backoff: u32,
 }
 
+/// Back-off rounds one stalled digit may spend in all on a device with a loop limit
+/// ([`RadixSort::lookback_backoff`]).
+pub const MAX_LOOP_LIMIT_BACKOFF_TRIPS: u32 = 8192;
+
+/// The back-off a pass runs with: `rounds`, capped on loop-limit devices so that
+/// `spin × rounds` ≤ [`MAX_LOOP_LIMIT_BACKOFF_TRIPS`].
+fn effective_backoff(rounds: u32, spin: u32, loop_limit: bool) -> u32 {
+    if loop_limit {
+        rounds.min(MAX_LOOP_LIMIT_BACKOFF_TRIPS / spin.max(1))
+    } else {
+        rounds
+    }
+}
+
 impl RadixSort {
     /// Largest capacity: look-back values and indices are 32-bit, and a count rounded
     /// up to whole tiles of any pass (≤ 3 840 keys) must fit too.
@@ -305,9 +319,16 @@ impl RadixSort {
         self.lookback_backoff = rounds;
     }
 
-    /// The back-off the coalesced passes use ([`RadixSort::set_lookback_backoff`]).
+    /// The back-off the coalesced passes use ([`RadixSort::set_lookback_backoff`]):
+    /// on a device with a loop limit ([`DeviceInfo::loop_limit`](crate::gpu::DeviceInfo::loop_limit):
+    /// llvmpipe before Mesa 25 stops an invocation after 65 535 loop trips in all and
+    /// falls through), at most [`MAX_LOOP_LIMIT_BACKOFF_TRIPS`] rounds per stalled
+    /// digit (`spin limit × back-off`), so the rounds of a few stalls stay far below it.
     pub fn lookback_backoff(&self) -> u32 {
-        self.lookback_backoff
+        let spin = self
+            .spin_limit
+            .unwrap_or_else(|| self.ctx.info().lookback_spin_limit());
+        effective_backoff(self.lookback_backoff, spin, self.ctx.info().loop_limit())
     }
 
     /// The histogram's workgroup cap ([`RadixSort::set_hist_groups`]).
@@ -490,7 +511,7 @@ impl RadixSort {
                 spin_limit: spin,
                 generic_rank: self.generic_rank as u32,
                 lb_window: window,
-                lb_backoff: self.lookback_backoff,
+                lb_backoff: self.lookback_backoff(),
                 pad0: 0,
             };
             pass.dispatch_indirect(
@@ -675,6 +696,26 @@ impl SortScratch {
         match which {
             Sorted::Primary => (&self.keys, &self.values),
             Sorted::Alternate => (&self.keys_alt, &self.values_alt),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backoff_is_capped_only_under_a_loop_limit() {
+        assert_eq!(effective_backoff(512, 4096, false), 512);
+        assert_eq!(effective_backoff(64, 256, true), 32);
+        assert_eq!(effective_backoff(16, 256, true), 16);
+        // Spin 0 (every stall recounted at once): no polls, nothing to cap by it.
+        assert_eq!(
+            effective_backoff(64, 0, true),
+            64.min(MAX_LOOP_LIMIT_BACKOFF_TRIPS)
+        );
+        for (rounds, spin) in [(64u32, 256u32), (1 << 20, 1), (7, 5000)] {
+            assert!(effective_backoff(rounds, spin, true) * spin <= MAX_LOOP_LIMIT_BACKOFF_TRIPS);
         }
     }
 }
