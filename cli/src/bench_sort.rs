@@ -341,7 +341,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         bits: format!("{}..{}", bits.start, bits.end),
         vary: format!("{}..{}", vary.start, vary.end),
         pass_kernel: pass.name(),
-        spin_limit: spin.unwrap_or_else(|| ctx.info().lookback_spin_limit()),
+        spin_limit: sorter.spin_limit(),
         hist_groups: sorter.hist_groups(),
         lookback_window: sorter.lookback_window(),
         lookback_backoff: sorter.lookback_backoff(),

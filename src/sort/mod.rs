@@ -325,10 +325,18 @@ impl RadixSort {
     /// falls through), at most [`MAX_LOOP_LIMIT_BACKOFF_TRIPS`] rounds per stalled
     /// digit (`spin limit × back-off`), so the rounds of a few stalls stay far below it.
     pub fn lookback_backoff(&self) -> u32 {
-        let spin = self
-            .spin_limit
-            .unwrap_or_else(|| self.ctx.info().lookback_spin_limit());
-        effective_backoff(self.lookback_backoff, spin, self.ctx.info().loop_limit())
+        effective_backoff(
+            self.lookback_backoff,
+            self.spin_limit(),
+            self.ctx.info().loop_limit(),
+        )
+    }
+
+    /// The look-back polls before the fallback the passes use
+    /// ([`RadixSort::set_spin_limit`], else the device's).
+    pub fn spin_limit(&self) -> u32 {
+        self.spin_limit
+            .unwrap_or_else(|| self.ctx.info().lookback_spin_limit())
     }
 
     /// The histogram's workgroup cap ([`RadixSort::set_hist_groups`]).
@@ -470,9 +478,7 @@ impl RadixSort {
         if let Some(t) = ts.as_deref_mut() {
             t.mark(cmd, "sort.histogram");
         }
-        let spin = self
-            .spin_limit
-            .unwrap_or_else(|| ctx.info().lookback_spin_limit());
+        let spin = self.spin_limit();
         let window = self.lookback_window();
         for p in 0..passes {
             let shift = bits.start + 8 * p;
