@@ -22,7 +22,8 @@
 //   256 invocations for subgroups of ≥ 16 lanes, 128 for any size;
 //   `sort/scanpass_s{256,128}[_k32]` the same pass reading prefixes instead of looking
 //   back, and `sort/tile_count_s{256,128}[_k32]` its tiles' digit counts (the
-//   reduce-then-scan passes).
+//   reduce-then-scan passes); `sort/probe_{copy,tile}_c{256,128}[_k32]` the coalesced
+//   pass doing part of its work (`bench sort --probe`, timing instruments).
 
 /// One `#define NAME VALUE`.
 pub type Define = (&'static str, String);
@@ -158,13 +159,18 @@ pub fn families() -> Vec<Family> {
     // The coalesced passes, and the reduce-then-scan passes: the coalesced pass reading
     // prefixes, and its tile counts.
     let coalesced = "sort/onesweep_coalesced.glsl";
-    for (wg, min_sg, c, s, count) in [
+    // The probes (PROBE 1 copy, 2 tile) of each coalesced pass.
+    for (wg, min_sg, c, s, count, probes) in [
         (
             256,
             16,
             ("SORT_ONESWEEP_C256", "sort/onesweep_c256"),
             ("SORT_SCANPASS_S256", "sort/scanpass_s256"),
             ("SORT_TILE_COUNT_S256", "sort/tile_count_s256"),
+            [
+                ("SORT_PROBE_COPY_C256", "sort/probe_copy_c256"),
+                ("SORT_PROBE_TILE_C256", "sort/probe_tile_c256"),
+            ],
         ),
         (
             128,
@@ -172,12 +178,20 @@ pub fn families() -> Vec<Family> {
             ("SORT_ONESWEEP_C128", "sort/onesweep_c128"),
             ("SORT_SCANPASS_S128", "sort/scanpass_s128"),
             ("SORT_TILE_COUNT_S128", "sort/tile_count_s128"),
+            [
+                ("SORT_PROBE_COPY_C128", "sort/probe_copy_c128"),
+                ("SORT_PROBE_TILE_C128", "sort/probe_tile_c128"),
+            ],
         ),
     ] {
         let fixed = vec![d("WG", wg), d("KPT", 15), d("MIN_SG", min_sg)];
         let scan = [fixed.clone(), vec![d("SCAN_PREFIX", 1)]].concat();
         f.push(sort(c.0, c.1, coalesced, fixed.clone()));
         f.push(sort(s.0, s.1, coalesced, scan));
+        for (i, p) in probes.into_iter().enumerate() {
+            let defs = [fixed.clone(), vec![d("PROBE", i + 1)]].concat();
+            f.push(sort(p.0, p.1, coalesced, defs));
+        }
         f.push(sort(count.0, count.1, "sort/tile_count.glsl", fixed));
     }
     f

@@ -6,7 +6,9 @@ use crate::common;
 use common::Rng;
 use svraster::gpu::{recorder, Context, Memory, Timestamps};
 use svraster::scan::PrefixScan;
-use svraster::sort::{Count, KeyWidth, RadixSort, SortPass, SortScratch, Sorted, ERR_OVERFLOW};
+use svraster::sort::{
+    Count, KeyWidth, PassProbe, RadixSort, SortPass, SortScratch, Sorted, ERR_OVERFLOW,
+};
 
 /// The pass kernels the pass-by-pass tests run: every one the device supports (those it
 /// does not are named), or only those `SVRASTER_TEST_SORT_PASSES` lists (comma-separated
@@ -531,6 +533,91 @@ fn sort_skips_constant_digits() {
         }
     }
     common::finish(&ctx);
+}
+
+/// The pass probes (`bench sort --probe`: a part of a pass run in its place, to time
+/// it) leave what they define: `copy` the input, `tile` every tile of the pass sorted
+/// stably by the bits sorted. Each coalesced and reduce-then-scan pass the device runs,
+/// u64 and u32 keys, counts that end inside a tile, a single tile and one key, every
+/// pass run and constant digits skipped (an odd number of skips swaps the ping-pong);
+/// the direct pass has none.
+#[test]
+fn pass_probes_leave_what_they_define() {
+    let ctx = common::context();
+    let mut rng = Rng(57);
+    let mut ran = 0;
+    for pass in passes(&ctx) {
+        let mut h = Harness::with_pass(&ctx, 100_000, pass);
+        if pass == SortPass::Direct {
+            assert!(h.sort.set_probe(Some(PassProbe::Tile)).is_err());
+            continue;
+        }
+        let tile = pass.tile() as usize;
+        for probe in PassProbe::ALL {
+            h.sort.set_probe(Some(probe)).unwrap();
+            assert_eq!(h.sort.probe(), Some(probe));
+            for n in [3 * tile + 77, tile, 1] {
+                // Digit 1 constant in the second case: 1 of the 6 passes skipped.
+                for (vary, lo, hi) in [(u64::MAX, 0, 64), (!0xff00, 0, 48), (u64::MAX, 13, 61)] {
+                    let base = rng.next_u64() & !vary;
+                    let keys: Vec<u64> = (0..n).map(|_| base | (rng.next_u64() & vary)).collect();
+                    let vals: Vec<u32> = (0..n as u32).map(|i| i ^ 0x5a5a).collect();
+                    let what = format!(
+                        "pass {} probe {} n {n} bits {lo}..{hi}",
+                        pass.name(),
+                        probe.name()
+                    );
+                    let got = h.run(&keys, &vals, lo, hi);
+                    let want = probe_result(probe, tile, &keys, &vals, lo, hi);
+                    assert!(got == want, "{what}, u64 keys: wrong result");
+                    // u32 keys: the low word, bits within 0..32.
+                    let (lo, hi) = (lo.min(31), hi.min(32));
+                    let k32: Vec<u32> = keys.iter().map(|&k| k as u32).collect();
+                    let wide: Vec<u64> = k32.iter().map(|&k| u64::from(k)).collect();
+                    let (gk, gv) = h.run32(&k32, &vals, lo, hi);
+                    let got = (gk.into_iter().map(u64::from).collect(), gv);
+                    let want = probe_result(probe, tile, &wide, &vals, lo, hi);
+                    assert!(
+                        got == want,
+                        "{what}, u32 keys (bits {lo}..{hi}): wrong result"
+                    );
+                    ran += 1;
+                }
+            }
+        }
+        // Without a probe the pass sorts again.
+        h.sort.set_probe(None).unwrap();
+        let keys: Vec<u64> = (0..5000).map(|_| rng.next_u64()).collect();
+        let vals: Vec<u32> = (0..5000).collect();
+        let got = h.run(&keys, &vals, 0, 64);
+        assert!(got == common::reference_sort(&keys, &vals, 0, 64));
+    }
+    println!("{ran} probe runs");
+    common::finish(&ctx);
+}
+
+/// What a pass probe leaves ([`PassProbe`]): the input (`copy`), or every `tile` keys
+/// sorted stably by bits `lo..hi` (`tile`).
+fn probe_result(
+    probe: PassProbe,
+    tile: usize,
+    keys: &[u64],
+    vals: &[u32],
+    lo: u32,
+    hi: u32,
+) -> (Vec<u64>, Vec<u32>) {
+    match probe {
+        PassProbe::Copy => (keys.to_vec(), vals.to_vec()),
+        PassProbe::Tile => {
+            let (mut k, mut v) = (Vec::new(), Vec::new());
+            for (kc, vc) in keys.chunks(tile).zip(vals.chunks(tile)) {
+                let (a, b) = common::reference_sort(kc, vc, lo, hi);
+                k.extend(a);
+                v.extend(b);
+            }
+            (k, v)
+        }
+    }
 }
 
 /// Odd bit ranges: one-bit digits, a last digit narrower than 8 bits, a single bit,

@@ -14,7 +14,7 @@
 #   2. the test binaries (4 at a time, 6 threads each) while that builds
 #   3. bench sort 2^24 (auto, reduce-then-scan s256 and s128, direct pass, 40 bits, spin limits 64 and 10^6, histogram
 #      workgroups uncapped and 256, look-back windows 1 and 8, back-off 64 and 512 ALU
-#      rounds between polls) and
+#      rounds between polls, the pass's copy and tile probes: its cost taken apart) and
 #      2^20 and 2^22, with look-back counters;
 #      bench train lego 100²/200²/400² level 6 (auto segments) and 400² level 7
 #   4. lego 400², 6 000 iterations, the default preset (timed alone), eval on the 50
@@ -73,7 +73,7 @@ if [ -n "${SVR:-}" ]; then
   (cd $X && tar czf "$O/svr_tiny.tgz" svr_tiny svr_tiny.log 2>/dev/null)
 fi
 stamp bench
-for a in "--pass auto" "--pass s256" "--pass s128" "--pass direct" "--bits 0..40" "--spin 64" "--spin 1000000" "--hist-groups 0" "--hist-groups 256" "--window 1" "--window 8" "--backoff 64" "--backoff 512"; do
+for a in "--pass auto" "--pass s256" "--pass s128" "--pass direct" "--bits 0..40" "--spin 64" "--spin 1000000" "--hist-groups 0" "--hist-groups 256" "--window 1" "--window 8" "--backoff 64" "--backoff 512" "--probe copy" "--probe tile"; do
   nb=--no-baseline; [ "$a" = "--pass auto" ] && nb=
   timeout 40 "$B" bench sort --n 16777216 --runs 5 --warmup 2 $a $nb --json >> $X/sort.jsonl 2>>$X/sort.err
 done
@@ -86,7 +86,7 @@ import json, sys
 for l in open(sys.argv[1]):
     d = json.loads(l); g = sorted(v for k, v in d['stages_gb_per_s'].items() if k.startswith('sort.pass'))
     c = sorted(v for k, v in d['stages_median_ms'].items() if k.startswith('sort.count'))
-    print('sort', d['n'], d['pass_kernel'], d['bits'], 'spin', d.get('spin_limit'), 'hist groups', d.get('hist_groups'), 'window', d.get('lookback_window'), 'backoff', d.get('lookback_backoff'), 'hist ms', round(d['stages_median_ms'].get('sort.histogram', 0), 3), round(d['median_ms'], 2), 'ms', round(d['mkeys_per_s'] / 1e3, 2),
+    print('sort', d['n'], d['pass_kernel'], d['bits'], 'spin', d.get('spin_limit'), 'hist groups', d.get('hist_groups'), 'window', d.get('lookback_window'), 'backoff', d.get('lookback_backoff'), 'probe', d.get('probe'), 'hist ms', round(d['stages_median_ms'].get('sort.histogram', 0), 3), round(d['median_ms'], 2), 'ms', round(d['mkeys_per_s'] / 1e3, 2),
           'Gkeys/s, pass GB/s', round(g[len(g) // 2]) if g else '-', 'count ms', round(c[len(c) // 2], 3) if c else '-', 'look-back', d.get('lookback'), 'verified', d['verified'])
 PY
 for cfg in "4 6" "2 6" "1 6" "1 7"; do set -- $cfg

@@ -9,7 +9,7 @@ use anyhow::{bail, Context as _};
 use rand::{RngCore, SeedableRng};
 use svraster::eval::median;
 use svraster::gpu::{recorder, Context, Timestamps};
-use svraster::sort::{passes_for, Count, RadixSort, SortPass, SortScratch};
+use svraster::sort::{passes_for, Count, PassProbe, RadixSort, SortPass, SortScratch};
 
 /// `svraster bench sort` options.
 #[derive(clap::Args)]
@@ -53,6 +53,14 @@ pub struct SortArgs {
     /// look-back word (default 0: back to back; CUB sleeps between polls).
     #[arg(long, default_value_t = 0)]
     backoff: u32,
+    /// Run a part of the pass in its place, to time that part (coalesced and
+    /// reduce-then-scan passes): `copy` (each tile loaded and written back through
+    /// shared memory: the pass's traffic, no ranking, no look-back) or `tile` (ranked
+    /// and staged as the pass does, written back into its own tile: no look-back, no
+    /// scattered writes). The result is checked against what the probe defines (the
+    /// input; every tile sorted), not against a sort.
+    #[arg(long)]
+    probe: Option<String>,
     /// Skip the CPU baseline (`sort_unstable` timed W + R times; sweeps of large sorts
     /// on a GPU machine). Every run is still verified.
     #[arg(long)]
@@ -110,6 +118,8 @@ struct SortReport {
     lookback_window: u32,
     /// ALU rounds between two polls of an unpublished look-back word (coalesced passes).
     lookback_backoff: u32,
+    /// The probe run in place of the passes (`copy`, `tile`; null: the pass itself).
+    probe: Option<&'static str>,
     passes: u32,
     /// Bit p set: pass p was skipped (its digit is the same in every key).
     skipped_passes: u32,
@@ -156,6 +166,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         hist_groups,
         window,
         backoff,
+        ref probe,
         no_baseline,
         seed,
         json,
@@ -165,6 +176,10 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         "auto" => SortPass::for_device(ctx.info()),
         p => p.parse::<SortPass>().map_err(anyhow::Error::msg)?,
     };
+    let pass_probe = probe
+        .as_deref()
+        .map(|p| p.parse::<PassProbe>().map_err(anyhow::Error::msg))
+        .transpose()?;
     if runs < 5 {
         bail!("--runs must be at least 5 (medians of fewer runs are noise on a shared machine)");
     }
@@ -229,9 +244,16 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
             cpu_ms.push(dt);
         }
     }
-    // Reference for verification: the stable order.
+    // Reference for verification: the stable order; with a probe, what it leaves (the
+    // input, or every tile of the pass sorted stably).
     let mut expect = pairs;
-    expect.sort_by_key(|&(k, _)| (k >> lo) & mask);
+    match pass_probe {
+        None => expect.sort_by_key(|&(k, _)| (k >> lo) & mask),
+        Some(PassProbe::Copy) => {}
+        Some(PassProbe::Tile) => expect
+            .chunks_mut(pass.tile() as usize)
+            .for_each(|t| t.sort_by_key(|&(k, _)| (k >> lo) & mask)),
+    }
     let (ek, ev): (Vec<u64>, Vec<u32>) = expect.into_iter().unzip();
 
     let mut sorter = RadixSort::with_pass(ctx, n, pass).context("creating the radix sort")?;
@@ -242,6 +264,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     }
     sorter.set_lookback_window(window)?;
     sorter.set_lookback_backoff(backoff);
+    sorter.set_probe(pass_probe)?;
     let scratch = SortScratch::new(ctx, n)?;
     let src_k = ctx.buffer_from("bench.keys.src", &keys)?;
     let src_v = ctx.buffer_from("bench.values.src", &values)?;
@@ -345,6 +368,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         hist_groups: sorter.hist_groups(),
         lookback_window: sorter.lookback_window(),
         lookback_backoff: sorter.lookback_backoff(),
+        probe: pass_probe.map(PassProbe::name),
         passes,
         skipped_passes: skipped,
         runs,
@@ -366,13 +390,17 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     } else {
         println!(
             "sort of {} u64 keys + u32 values, bits {} ({} passes, {} skipped; keys vary in \
-             bits {}), pass kernel {} on {}",
+             bits {}), pass kernel {}{} on {}",
             n,
             report.bits,
             passes,
             skipped.count_ones(),
             report.vary,
             pass.name(),
+            pass_probe.map_or(String::new(), |p| format!(
+                " replaced by its `{}` probe (a timing instrument: the result is not a sort)",
+                p.name()
+            )),
             report.device
         );
         println!("  GPU   median {:9.2} ms  {:8.2} Mkeys/s  (timestamps; wall {:.2} ms; {} runs after {} warm-up)", med, report.mkeys_per_s, report.wall_median_ms, runs, warmup);

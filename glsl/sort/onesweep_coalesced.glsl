@@ -27,9 +27,24 @@
 // and tile, the count of that digit in every earlier tile (CUB's and GPUSorting's older
 // DeviceRadixSort: upsweep, scan, downsweep), and tiles are workgroup ids.
 //
+// With PROBE (src/sort SortPass probes, `bench sort --probe`: timing instruments, not
+// sorts) the pass does only a part of its work, so that a device's pass time can be
+// taken apart: PROBE 1 ("copy") loads each tile and writes it back through shared memory
+// at the same positions (no ranking, no look-back: the output is the input); PROBE 2
+// ("tile") ranks and stages as the pass does, with no look-back, and writes each tile's
+// keys back into the tile's own slots in their tile-local sorted order (a pass of an
+// LSD sort within every tile: the output is each tile sorted by the bits passed).
+// Tiles are workgroup ids, as with SCAN_PREFIX.
+//
 // Defines (build.rs variants): WG invocations, KPT keys per invocation, MIN_SG the
 // smallest subgroup size the variant supports (its shared histogram rows: WG / MIN_SG).
 #include "common.glsl"
+#ifndef PROBE
+#define PROBE 0 // the pass itself
+#endif
+#if defined(SCAN_PREFIX) || PROBE != 0
+#define NO_LOOKBACK // offsets from a scan over the tiles, or none (probes)
+#endif
 #extension GL_KHR_shader_subgroup_shuffle : require
 #extension GL_EXT_control_flow_attributes : require
 #include "pass_state.glsl"
@@ -92,12 +107,12 @@ layout(push_constant) uniform Push {
 
 void main() {
     uint t = gl_LocalInvocationID.x;
-#ifndef SCAN_PREFIX
+#ifndef NO_LOOKBACK
     if (t == 0u) S_TILE = atomicAdd(pc.state.v[ST_TILE_CTR + pc.pass_index], 1u);
 #endif
     for (uint i = t; i < ROWS_WORDS; i += WG) s_mem[i] = 0u;
     barrier();
-#ifdef SCAN_PREFIX
+#ifdef NO_LOOKBACK
     uint tile = linear_group_id(); // no look-back: tiles need not start in order
 #else
     uint tile = S_TILE;
@@ -133,6 +148,11 @@ void main() {
     }
     // Unrolled: k[], v[] and loc[] must stay in registers (an array indexed by a loop
     // counter the compiler does not unroll goes to local memory on GPUs).
+#if PROBE == 1
+    // The copy probe: each key's slot is its load position within the tile.
+    [[unroll]] for (uint r = 0u; r < KPT; r++)
+        loc[r] = chunk - tile * TILE + r * sgsize + lane;
+#else
     [[unroll]] for (uint r = 0u; r < KPT; r++) {
         bool valid = chunk + r * sgsize + lane < n;
         uint d = uint(k[r] >> pc.shift) & digit_mask;
@@ -146,8 +166,10 @@ void main() {
         pre = subgroupShuffle(pre, leader);
         loc[r] = pre + below;
     }
+#endif
     barrier();
 
+#if PROBE != 1
     // 2. Down each digit's column: subgroup counts -> subgroup offsets; tile counts.
     uint nsg = gl_NumSubgroups;
     uint count[DPT];
@@ -162,7 +184,7 @@ void main() {
         count[q] = run;
         s_local[d] = run;
     }
-#ifndef SCAN_PREFIX
+#ifndef NO_LOOKBACK
     // Publish the tile's counts at once: successors' look-back may stop here.
     uint tag = pc.state.v[ST_EPOCH] + pc.pass_index;
     uint status_base = tile * RADIX;
@@ -200,7 +222,8 @@ void main() {
     uint local_start[DPT]; // s_local's words take the look-back's scalars from here on
     [[unroll]] for (uint q = 0u; q < DPT; q++) local_start[q] = s_local[t + q * WG];
     barrier();
-#ifndef SCAN_PREFIX
+#endif // PROBE != 1
+#ifndef NO_LOOKBACK
     if (t == 0u) {
         S_LB(0) = 0u;
         S_LB(1) = 0u;
@@ -218,6 +241,10 @@ void main() {
         }
     }
 
+#if PROBE != 0
+    // 5. (probes) No offsets: every key goes back into its own tile's slots.
+    [[unroll]] for (uint q = 0u; q < DPT; q++) s_base[t + q * WG] = tile * TILE;
+#else
     uint before[DPT];
 #ifdef SCAN_PREFIX
     // 5. The keys of this digit in every earlier tile: sort/tile_count.glsl counted
@@ -356,6 +383,7 @@ void main() {
         uint d = t + q * WG;
         s_base[d] = pc.state.v[hist_base + d] + before[q] - local_start[q];
     }
+#endif // PROBE
     barrier();
 
     // 6. Write out in sorted order: slot i of the tile goes to base[digit] + i, so the

@@ -32,8 +32,8 @@ use crate::gpu::{glsl, kernels, recorder, Buffer, Context, Kernel, Memory, Times
 mod pass;
 mod run_state;
 mod scan_pass;
-pub use pass::SortPass;
 use pass::MIN_TILE;
+pub use pass::{PassProbe, SortPass};
 pub(crate) use run_state::{
     HistGrid, RunState, ST_ARGS_TILES, ST_ERRORS, ST_N, ST_REQUESTED, ST_TOTAL,
 };
@@ -110,6 +110,10 @@ push_constants!(SORT_ONESWEEP_C128_VARIANTS, PassPush);
 push_constants!(SORT_ONESWEEP_C256_VARIANTS, PassPush);
 push_constants!(SORT_SCANPASS_S128_VARIANTS, PassPush);
 push_constants!(SORT_SCANPASS_S256_VARIANTS, PassPush);
+push_constants!(SORT_PROBE_COPY_C128_VARIANTS, PassPush);
+push_constants!(SORT_PROBE_TILE_C128_VARIANTS, PassPush);
+push_constants!(SORT_PROBE_COPY_C256_VARIANTS, PassPush);
+push_constants!(SORT_PROBE_TILE_C256_VARIANTS, PassPush);
 
 /// Where the element count of a run comes from.
 #[derive(Clone, Copy)]
@@ -200,6 +204,8 @@ pub struct RadixSort {
     hist_groups: u32,
     lookback_window: Option<u32>,
     lookback_backoff: u32,
+    /// A probe run in place of the pass kernel, with its kernels (u64, u32 keys).
+    probe: Option<(PassProbe, Kernel, Kernel)>,
 }
 
 /// Back-off rounds one stalled digit may spend in all on a device with a loop limit
@@ -275,7 +281,39 @@ impl RadixSort {
             hist_groups: HIST_GROUPS,
             lookback_window: None,
             lookback_backoff: 0,
+            probe: None,
         })
+    }
+
+    /// Runs `probe` in place of every digit pass (None: the pass itself), to time a
+    /// part of the pass's work (`bench sort --probe`): while a probe is set, a recorded
+    /// "sort" leaves what [`PassProbe`] defines, not sorted keys. The setup, the
+    /// histogram and, for reduce-then-scan passes, the tile counts run as before. Only
+    /// the coalesced and reduce-then-scan passes have probes.
+    pub fn set_probe(&mut self, probe: Option<PassProbe>) -> Result<()> {
+        self.probe = match probe {
+            None => None,
+            Some(p) => {
+                let [k64, k32] = p.kernels(self.kind).ok_or_else(|| {
+                    Error::Invalid(format!(
+                        "pass `{}` has no probes: choose a coalesced or reduce-then-scan \
+                         pass (c128, c256, s128, s256)",
+                        self.kind.name()
+                    ))
+                })?;
+                Some((
+                    p,
+                    Kernel::new(&self.ctx, k64)?,
+                    Kernel::new(&self.ctx, k32)?,
+                ))
+            }
+        };
+        Ok(())
+    }
+
+    /// The probe run in place of the passes ([`RadixSort::set_probe`]).
+    pub fn probe(&self) -> Option<PassProbe> {
+        self.probe.as_ref().map(|p| p.0)
     }
 
     /// Workgroups of the histogram kernel at most (0: one per 4 096 keys). Each ends
@@ -447,9 +485,11 @@ impl RadixSort {
             t.mark(cmd, "sort.setup");
         }
         let state = self.run.state.address();
-        let (hist, pass) = match width {
-            KeyWidth::U64 => (&self.hist, &self.pass),
-            KeyWidth::U32 => (&self.hist32, &self.pass32),
+        let (hist, pass) = match (width, &self.probe) {
+            (KeyWidth::U64, None) => (&self.hist, &self.pass),
+            (KeyWidth::U32, None) => (&self.hist32, &self.pass32),
+            (KeyWidth::U64, Some((_, p, _))) => (&self.hist, p),
+            (KeyWidth::U32, Some((_, _, p))) => (&self.hist32, p),
         };
         hist.dispatch_indirect(
             cmd,

@@ -158,6 +158,61 @@ impl std::str::FromStr for SortPass {
     }
 }
 
+/// A part of a coalesced pass's work, run in its place to time that part
+/// (`bench sort --probe`; [`crate::sort::RadixSort::set_probe`]). Each probe is the
+/// pass's own kernel body with steps left out (`PROBE` in
+/// glsl/sort/onesweep_coalesced.glsl), so the differences between the probes and the
+/// pass are the costs of the steps: with a probe a "sort" is not a sort, and its result
+/// is what the probe defines.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum PassProbe {
+    /// Loads every tile and writes it back through shared memory at the same
+    /// positions: the pass's memory traffic in coalesced runs, with no ranking and no
+    /// look-back. The result is the input.
+    Copy,
+    /// Ranks and stages every tile as the pass does, with no look-back, and writes its
+    /// keys back into the tile's own slots in their tile-local order: over the passes,
+    /// an LSD sort within every tile. The result is each tile (the pass's tile size,
+    /// [`SortPass::tile`]) sorted, stably, by the bits sorted.
+    Tile,
+}
+
+impl PassProbe {
+    pub const ALL: [PassProbe; 2] = [PassProbe::Copy, PassProbe::Tile];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            PassProbe::Copy => "copy",
+            PassProbe::Tile => "tile",
+        }
+    }
+
+    /// The probe's kernels (u64, u32 keys) for a pass kind; only the coalesced passes
+    /// have probes (the reduce-then-scan passes are the same kernel body, and their
+    /// probe is the coalesced pass's of the same size).
+    pub(super) fn kernels(self, pass: SortPass) -> Option<[&'static KernelSource; 2]> {
+        use PassProbe::*;
+        use SortPass::*;
+        Some(match (self, pass) {
+            (Copy, Coalesced128 | Scan128) => kernels::SORT_PROBE_COPY_C128_VARIANTS,
+            (Tile, Coalesced128 | Scan128) => kernels::SORT_PROBE_TILE_C128_VARIANTS,
+            (Copy, Coalesced256 | Scan256) => kernels::SORT_PROBE_COPY_C256_VARIANTS,
+            (Tile, Coalesced256 | Scan256) => kernels::SORT_PROBE_TILE_C256_VARIANTS,
+            (_, Direct) => return None,
+        })
+    }
+}
+
+impl std::str::FromStr for PassProbe {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        PassProbe::ALL
+            .into_iter()
+            .find(|p| p.name() == s)
+            .ok_or_else(|| format!("unknown pass probe `{s}`: copy or tile"))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::SortPass;

@@ -306,6 +306,71 @@ fn bench_sort_too_large_is_a_clear_error() {
     assert_eq!(err.trim().lines().count(), 1, "one error line: {err}");
 }
 
+/// `bench sort --probe`: the probe's result is checked against what it defines and named
+/// in the JSON; the direct pass (no probes) and an unknown probe are one clear error.
+#[test]
+fn bench_sort_probes_are_checked_and_named() {
+    for probe in ["copy", "tile"] {
+        let (ok, out, err) = svraster(&[
+            "bench",
+            "sort",
+            "--n",
+            "5000",
+            "--runs",
+            "5",
+            "--warmup",
+            "1",
+            "--pass",
+            "c128",
+            "--probe",
+            probe,
+            "--no-baseline",
+            "--json",
+        ]);
+        assert!(ok, "{err}");
+        let v: serde_json::Value = serde_json::from_str(out.trim()).expect("bench sort JSON");
+        assert_eq!(v["probe"], probe, "{v}");
+        assert_eq!(v["pass_kernel"], "c128", "{v}");
+        assert_eq!(v["verified"], true, "{v}");
+    }
+    let (ok, out, _) = svraster(&[
+        "bench",
+        "sort",
+        "--n",
+        "5000",
+        "--runs",
+        "5",
+        "--pass",
+        "c128",
+        "--no-baseline",
+        "--json",
+    ]);
+    assert!(ok);
+    let v: serde_json::Value = serde_json::from_str(out.trim()).expect("bench sort JSON");
+    assert!(v["probe"].is_null(), "{v}");
+    for (args, says) in [
+        (["--pass", "direct", "--probe", "tile"], "no probes"),
+        (
+            ["--pass", "c128", "--probe", "half"],
+            "unknown pass probe `half`",
+        ),
+    ] {
+        let mut a = vec![
+            "bench",
+            "sort",
+            "--n",
+            "5000",
+            "--runs",
+            "5",
+            "--no-baseline",
+        ];
+        a.extend(args);
+        let (ok, _, err) = svraster(&a);
+        assert!(!ok && err.contains(says), "{args:?}: {err}");
+        assert_eq!(err.trim().lines().count(), 1, "one error line: {err}");
+    }
+}
+
 /// A voxel budget below the starting grid is refused before training (not a run that
 /// silently never subdivides), and leaves no run behind.
 #[test]
