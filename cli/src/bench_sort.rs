@@ -134,6 +134,11 @@ struct SortReport {
     /// histogram and a reduce-then-scan pass's count (`sort.countP`: the tile counts
     /// and their scan, timed apart from `sort.passP`) read n keys once.
     stages_gb_per_s: BTreeMap<String, f64>,
+    /// The device's own copy of the same pairs (vkCmdCopyBuffer of the keys and the
+    /// values, median of the runs), and bytes_per_pass over its time: the floor of a
+    /// pass, which moves the same bytes.
+    copy_floor_ms: f64,
+    copy_floor_gb_per_s: f64,
     /// The decoupled look-back of the timed runs (medians): status words read per digit
     /// and tile (1 is the least: the predecessor had its inclusive prefix), extra polls
     /// of unpublished words per tile, fallback rounds per run.
@@ -316,6 +321,23 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
             }
         }
     }
+    // The floor: the device copies the same pairs (what a pass reads and writes).
+    let mut floor_ts = Timestamps::new(ctx, 2)?;
+    let mut floor_ms = Vec::new();
+    for i in 0..warmup + runs {
+        ctx.submit_and_wait(|cmd| {
+            floor_ts.begin(cmd);
+            recorder::copy(ctx, cmd, &src_k, &scratch.keys_alt, 0, 0, n as u64 * 8);
+            recorder::copy(ctx, cmd, &src_v, &scratch.values_alt, 0, 0, n as u64 * 4);
+            floor_ts.mark(cmd, "copy");
+            Ok(())
+        })?;
+        let ms: f64 = floor_ts.stages()?.iter().map(|s| s.1).sum();
+        if i >= warmup {
+            floor_ms.push(ms);
+        }
+    }
+    let copy_floor_ms = median(&floor_ms);
     let med = median(&gpu_ms);
     let cpu = (!cpu_ms.is_empty()).then(|| median(&cpu_ms));
     let skipped = sorter.last_skipped()?;
@@ -378,6 +400,8 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         stages_median_ms,
         bytes_per_pass,
         stages_gb_per_s,
+        copy_floor_ms,
+        copy_floor_gb_per_s: bytes_per_pass as f64 / (copy_floor_ms * 1e6),
         lookback,
         verified: failed == 0,
         failed_runs: failed,
@@ -412,6 +436,10 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
                 None => println!("    {k:<16} {v:9.2} ms"),
             }
         }
+        println!(
+            "    (device copy of the pairs {:9.2} ms  {:7.2} GB/s: the floor of a pass)",
+            report.copy_floor_ms, report.copy_floor_gb_per_s
+        );
         let lb = &report.lookback;
         println!(
             "  look-back: {:.2} status words read per digit and tile, {:.1} extra polls per \

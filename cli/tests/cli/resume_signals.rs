@@ -332,6 +332,7 @@ fn bench_sort_probes_are_checked_and_named() {
         assert_eq!(v["probe"], probe, "{v}");
         assert_eq!(v["pass_kernel"], "c128", "{v}");
         assert_eq!(v["verified"], true, "{v}");
+        assert!(v["copy_floor_gb_per_s"].as_f64().unwrap() > 0.0, "{v}");
     }
     let (ok, out, _) = svraster(&[
         "bench",
