@@ -24,9 +24,14 @@
 #      straight:colour_clamp_grad=straight), eval
 # $OUT: run.log (everything), res.tgz (logs, JSON, stats), svr_tiny.tgz.
 # A dry run of the flow on any machine: SKIP_TESTS=1 ITERS=60 OUT=/tmp/o bash tools/gpu_check.sh .gpu
+# (on lavapipe with small benches, so that the trainings run too: SORT_N=262144
+# SORT_SMALL=65536 BENCH_TRAIN='4 4' SKIP_SVR=1; at 8 lanes the 16-lane passes c256/s256
+# and the probes, which the device's pass (direct) lacks, fail and say so in sort.err).
 set -u
 G=$(cd "${1:-.gpu}" && pwd); BUDGET=${2:-570}; shift 2 2>/dev/null || shift $#
 VARIANTS=("$@"); ITERS=${ITERS:-6000}
+SORT_N=${SORT_N:-16777216}; SORT_SMALL=${SORT_SMALL:-"1048576 4194304"}
+BENCH_TRAIN=${BENCH_TRAIN:-"4 6;2 6;1 6;1 7"} # downscale and grid level per bench train
 O=${OUT:-/tmp/out}; X=/tmp/x; mkdir -p "$O" "$X"
 exec > >(tee -a "$O/run.log") 2>&1
 t0=$(date +%s)
@@ -75,9 +80,9 @@ fi
 stamp bench
 for a in "--pass auto" "--pass s256" "--pass s128" "--pass direct" "--bits 0..40" "--spin 64" "--spin 1000000" "--hist-groups 0" "--hist-groups 256" "--window 1" "--window 8" "--backoff 64" "--backoff 512" "--probe copy" "--probe tile"; do
   nb=--no-baseline; [ "$a" = "--pass auto" ] && nb=
-  timeout 40 "$B" bench sort --n 16777216 --runs 5 --warmup 2 $a $nb --json >> $X/sort.jsonl 2>>$X/sort.err
+  timeout 40 "$B" bench sort --n $SORT_N --runs 5 --warmup 2 $a $nb --json >> $X/sort.jsonl 2>>$X/sort.err
 done
-for n in 1048576 4194304; do
+for n in $SORT_SMALL; do
   timeout 40 "$B" bench sort --n $n --runs 5 --warmup 2 --json >> $X/sort.jsonl 2>>$X/sort.err
   timeout 40 "$B" bench sort --n $n --runs 5 --warmup 2 --pass s256 --no-baseline --json >> $X/sort.jsonl 2>>$X/sort.err
 done
@@ -89,7 +94,8 @@ for l in open(sys.argv[1]):
     print('sort', d['n'], d['pass_kernel'], d['bits'], 'spin', d.get('spin_limit'), 'hist groups', d.get('hist_groups'), 'window', d.get('lookback_window'), 'backoff', d.get('lookback_backoff'), 'probe', d.get('probe'), 'hist ms', round(d['stages_median_ms'].get('sort.histogram', 0), 3), round(d['median_ms'], 2), 'ms', round(d['mkeys_per_s'] / 1e3, 2),
           'Gkeys/s, pass GB/s', round(g[len(g) // 2]) if g else '-', 'copy floor GB/s', round(d.get('copy_floor_gb_per_s', 0)), 'count ms', round(c[len(c) // 2], 3) if c else '-', 'look-back', d.get('lookback'), 'verified', d['verified'])
 PY
-for cfg in "4 6" "2 6" "1 6" "1 7"; do set -- $cfg
+IFS=';' read -ra BT <<< "$BENCH_TRAIN"
+for cfg in "${BT[@]}"; do set -- $cfg
   timeout 40 "$B" bench train /tmp/lego --downscale $1 --preset quick --set grid_level=$2 --iters 10 --warmup 2 --json >> $X/bench_train.jsonl 2>>$X/bench_train.err
 done
 python3 - $X/bench_train.jsonl <<'PY'
@@ -107,15 +113,21 @@ train() { # name, settings...
   echo "train $v rc=$? wall $(( $(date +%s) - s ))s"; tail -1 $X/train_$v.log
   cp /tmp/runs/$v/stats.jsonl $X/stats_$v.jsonl 2>/dev/null
   timeout 60 "$B" eval /tmp/runs/$v --data /tmp/lego --split test --json > $X/eval_$v.json 2>$X/eval_$v.err
-  python3 -c "import json; d=json.load(open('$X/eval_$v.json')); print('eval $v', {k: x for k, x in d.items() if k != 'per_view'})" || tail -3 $X/eval_$v.err
+  echo "exit $? (124: timed out)" >> $X/eval_$v.err
+  python3 -c "import json; d=json.load(open('$X/eval_$v.json')); print('eval $v', {k: x for k, x in d.items() if k != 'per_view'})" 2>/dev/null ||
+    { echo "eval $v failed:"; tail -3 $X/eval_$v.err; }
   pack
 }
 RES=170; train base
 timeout 40 "$B" bench render /tmp/runs/base --data /tmp/lego --split test --views 20 --runs 3 --json > $X/render_base.json 2>$X/render_base.err
-python3 -c "import json; d=json.load(open('$X/render_base.json')); print('render: GPU', d['median_ms'], 'ms, wall', d['wall_median_ms'], 'ms, segments', d.get('segment_entries'), 'sort', d.get('sort_pass'), {k: round(v, 3) for k, v in d['stages_median_ms'].items() if 'sort' in k})" || tail -3 $X/render_base.err
+echo "exit $? (124: timed out)" >> $X/render_base.err
+python3 -c "import json; d=json.load(open('$X/render_base.json')); print('render: GPU', d['median_ms'], 'ms, wall', d['wall_median_ms'], 'ms, segments', d.get('segment_entries'), 'sort', d.get('sort_pass'), {k: round(v, 3) for k, v in d['stages_median_ms'].items() if 'sort' in k})" 2>/dev/null ||
+  { echo "bench render failed:"; tail -3 $X/render_base.err; }
 # The same frames with the reduce-then-scan sort passes (issue 33: is the look-back what a pass waits on?)
 SVRASTER_SORT_PASS=s256 timeout 40 "$B" bench render /tmp/runs/base --data /tmp/lego --split test --views 20 --runs 3 --json > $X/render_base_s256.json 2>$X/render_base_s256.err
-python3 -c "import json; d=json.load(open('$X/render_base_s256.json')); print('render: GPU', d['median_ms'], 'ms, wall', d['wall_median_ms'], 'ms, sort', d.get('sort_pass'), {k: round(v, 3) for k, v in d['stages_median_ms'].items() if 'sort' in k})" || tail -3 $X/render_base_s256.err
+echo "exit $? (124: timed out)" >> $X/render_base_s256.err
+python3 -c "import json; d=json.load(open('$X/render_base_s256.json')); print('render: GPU', d['median_ms'], 'ms, wall', d['wall_median_ms'], 'ms, sort', d.get('sort_pass'), {k: round(v, 3) for k, v in d['stages_median_ms'].items() if 'sort' in k})" 2>/dev/null ||
+  { echo "bench render (s256) failed:"; tail -3 $X/render_base_s256.err; }
 if [ -n "${SVR:-}" ]; then
   stamp "SVRaster, $ITERS iterations"
   timeout -s INT $(cap 170 20) bash "$G/svr/run_svr.sh" run /tmp/lego /tmp/svr $ITERS > $X/svr_run.log 2>&1; echo "svr rc=$?"
