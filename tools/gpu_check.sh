@@ -92,7 +92,7 @@ for l in open(sys.argv[1]):
     d = json.loads(l); g = sorted(v for k, v in d['stages_gb_per_s'].items() if k.startswith('sort.pass'))
     c = sorted(v for k, v in d['stages_median_ms'].items() if k.startswith('sort.count'))
     print('sort', d['n'], d['pass_kernel'], d['bits'], 'spin', d.get('spin_limit'), 'hist groups', d.get('hist_groups'), 'window', d.get('lookback_window'), 'backoff', d.get('lookback_backoff'), 'probe', d.get('probe'), 'hist ms', round(d['stages_median_ms'].get('sort.histogram', 0), 3), round(d['median_ms'], 2), 'ms', round(d['mkeys_per_s'] / 1e3, 2),
-          'Gkeys/s, pass GB/s', round(g[len(g) // 2]) if g else '-', 'copy floor GB/s', round(d.get('copy_floor_gb_per_s', 0)), 'count ms', round(c[len(c) // 2], 3) if c else '-', 'look-back', d.get('lookback'), 'verified', d['verified'])
+          'Gkeys/s, pass GB/s', round(g[len(g) // 2]) if g else '-', 'copy floor GB/s', round(d.get('copy_floor_gb_per_s') or 0), 'count ms', round(c[len(c) // 2], 3) if c else '-', 'look-back', d.get('lookback'), 'verified', d['verified'])
 PY
 IFS=';' read -ra BT <<< "$BENCH_TRAIN"
 for cfg in "${BT[@]}"; do set -- $cfg

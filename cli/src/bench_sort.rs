@@ -58,7 +58,7 @@ pub struct SortArgs {
     /// shared memory: the pass's traffic, no ranking, no look-back) or `tile` (ranked
     /// and staged as the pass does, written back into its own tile: no look-back, no
     /// scattered writes). The result is checked against what the probe defines (the
-    /// input; every tile sorted), not against a sort.
+    /// input; every tile sorted), not against a sort, and there is no CPU baseline.
     #[arg(long)]
     probe: Option<String>,
     /// Skip the CPU baseline (`sort_unstable` timed W + R times; sweeps of large sorts
@@ -138,7 +138,8 @@ struct SortReport {
     /// values, median of the runs), and bytes_per_pass over its time: the floor of a
     /// pass, which moves the same bytes.
     copy_floor_ms: f64,
-    copy_floor_gb_per_s: f64,
+    /// Null where the copy took no measurable time (a timer too coarse for the size).
+    copy_floor_gb_per_s: Option<f64>,
     /// The decoupled look-back of the timed runs (medians): status words read per digit
     /// and tile (1 is the least: the predecessor had its inclusive prefix), extra polls
     /// of unpublished words per tile, fallback rounds per run.
@@ -207,10 +208,10 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     let host_bytes = u64::from(n) * (8 + 4 + 2 * 16);
     let mut keys: Vec<u64> = Vec::new();
     let mut values: Vec<u32> = Vec::new();
-    let mut probe: Vec<u8> = Vec::new();
+    let mut host_probe: Vec<u8> = Vec::new();
     if keys.try_reserve_exact(n as usize).is_err()
         || values.try_reserve_exact(n as usize).is_err()
-        || probe.try_reserve_exact(host_bytes as usize).is_err()
+        || host_probe.try_reserve_exact(host_bytes as usize).is_err()
     {
         bail!(
             "--n {n}: the benchmark needs ~{} MiB of host memory for the keys and their \
@@ -218,7 +219,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
             host_bytes >> 20
         );
     }
-    drop(probe);
+    drop(host_probe);
     let mut rng = rand_pcg::Pcg64::seed_from_u64(seed);
     let vary_mask = if vary.end - vary.start == 64 {
         u64::MAX
@@ -235,10 +236,25 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     };
     let lo = bits.start;
 
+    // The sort first: a pass or probe the device cannot run fails before the CPU work.
+    let mut sorter = RadixSort::with_pass(ctx, n, pass).context("creating the radix sort")?;
+    sorter.set_skip_constant(!all_passes);
+    sorter.set_spin_limit(spin);
+    if let Some(g) = hist_groups {
+        sorter.set_hist_groups(g);
+    }
+    sorter.set_lookback_window(window)?;
+    sorter.set_lookback_backoff(backoff);
+    sorter.set_probe(pass_probe)?;
     // CPU baseline in this process: sort_unstable on the same pairs, same key bits.
     let mut cpu_ms = Vec::new();
     let pairs: Vec<(u64, u32)> = keys.iter().copied().zip(values.iter().copied()).collect();
-    let cpu_runs = if no_baseline { 0 } else { warmup + runs };
+    // A probe is not a sort: no baseline to set it against.
+    let cpu_runs = if no_baseline || pass_probe.is_some() {
+        0
+    } else {
+        warmup + runs
+    };
     for i in 0..cpu_runs {
         let mut p = pairs.clone();
         let t = Instant::now();
@@ -261,15 +277,6 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     }
     let (ek, ev): (Vec<u64>, Vec<u32>) = expect.into_iter().unzip();
 
-    let mut sorter = RadixSort::with_pass(ctx, n, pass).context("creating the radix sort")?;
-    sorter.set_skip_constant(!all_passes);
-    sorter.set_spin_limit(spin);
-    if let Some(g) = hist_groups {
-        sorter.set_hist_groups(g);
-    }
-    sorter.set_lookback_window(window)?;
-    sorter.set_lookback_backoff(backoff);
-    sorter.set_probe(pass_probe)?;
     let scratch = SortScratch::new(ctx, n)?;
     let src_k = ctx.buffer_from("bench.keys.src", &keys)?;
     let src_v = ctx.buffer_from("bench.values.src", &values)?;
@@ -401,7 +408,8 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         bytes_per_pass,
         stages_gb_per_s,
         copy_floor_ms,
-        copy_floor_gb_per_s: bytes_per_pass as f64 / (copy_floor_ms * 1e6),
+        copy_floor_gb_per_s: (copy_floor_ms > 0.0)
+            .then(|| bytes_per_pass as f64 / (copy_floor_ms * 1e6)),
         lookback,
         verified: failed == 0,
         failed_runs: failed,
@@ -437,8 +445,11 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
             }
         }
         println!(
-            "    (device copy of the pairs {:9.2} ms  {:7.2} GB/s: the floor of a pass)",
-            report.copy_floor_ms, report.copy_floor_gb_per_s
+            "    (device copy of the pairs {:9.2} ms  {} GB/s: the floor of a pass)",
+            report.copy_floor_ms,
+            report
+                .copy_floor_gb_per_s
+                .map_or("-".to_string(), |g| format!("{g:7.2}"))
         );
         let lb = &report.lookback;
         println!(

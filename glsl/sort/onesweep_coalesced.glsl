@@ -110,7 +110,9 @@ void main() {
 #ifndef NO_LOOKBACK
     if (t == 0u) S_TILE = atomicAdd(pc.state.v[ST_TILE_CTR + pc.pass_index], 1u);
 #endif
+#if PROBE != 1 // the copy probe uses no histogram rows
     for (uint i = t; i < ROWS_WORDS; i += WG) s_mem[i] = 0u;
+#endif
     barrier();
 #ifdef NO_LOOKBACK
     uint tile = linear_group_id(); // no look-back: tiles need not start in order
