@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # One device call that checks this engine on a lent GPU beside the official SVRaster
 # (issues "Real GPUs", "The onesweep sort", "Quality"; what the 2026-11-27 H200 run did).
-# Prepare here: apt-get update; ../shared/gpu/prepare.sh .gpu (../shared/gpu/README.md);
-# echo /.gpu/ >> .git/info/exclude. On the device, from the checkout's root, carry .gpu:
+# Prepare here: apt-get update; tools/gpu_prepare.sh .gpu (the shared kit,
+# ../shared/gpu/README.md, plus the examples the suite runs). On the device, from the
+# checkout's root, carry .gpu:
 #   bash tools/gpu_check.sh .gpu [SECONDS=570] [VARIANT...]
 # VARIANT: NAME:key=value[,key=value...] (a bare key=value[,...] is named variantN), one
 # training each, in order, while time is left; SKIP_SVR=1 leaves SVRaster out (its build,
@@ -78,7 +79,11 @@ if [ -n "${SVR:-}" ]; then
   (cd $X && tar czf "$O/svr_tiny.tgz" svr_tiny svr_tiny.log 2>/dev/null)
 fi
 stamp bench
-for a in "--pass auto" "--pass s256" "--pass s128" "--pass direct" "--bits 0..40" "--spin 64" "--spin 1000000" "--hist-groups 0" "--hist-groups 256" "--window 1" "--window 8" "--backoff 64" "--backoff 512" "--probe copy" "--probe tile"; do
+# The card's clocks while the benches run (bench sort heats the device before each
+# run: --heat-ms; the "--heat-ms 0" row is the same sort without it).
+nvidia-smi --query-gpu=timestamp,clocks.sm,clocks.mem,power.draw,utilization.gpu --format=csv,noheader -lms 200 > $X/clocks.csv 2>&1 &
+SMI=$!
+for a in "--pass auto" "--pass auto --heat-ms 0" "--pass s256" "--pass s128" "--pass direct" "--bits 0..40" "--spin 64" "--spin 1000000" "--hist-groups 0" "--hist-groups 256" "--window 1" "--window 8" "--backoff 64" "--backoff 512" "--probe copy" "--probe tile"; do
   nb=--no-baseline; [ "$a" = "--pass auto" ] && nb=
   timeout 40 "$B" bench sort --n $SORT_N --runs 5 --warmup 2 $a $nb --json >> $X/sort.jsonl 2>>$X/sort.err
 done
@@ -91,8 +96,20 @@ import json, sys
 for l in open(sys.argv[1]):
     d = json.loads(l); g = sorted(v for k, v in d['stages_gb_per_s'].items() if k.startswith('sort.pass'))
     c = sorted(v for k, v in d['stages_median_ms'].items() if k.startswith('sort.count'))
-    print('sort', d['n'], d['pass_kernel'], d['bits'], 'spin', d.get('spin_limit'), 'hist groups', d.get('hist_groups'), 'window', d.get('lookback_window'), 'backoff', d.get('lookback_backoff'), 'probe', d.get('probe'), 'hist ms', round(d['stages_median_ms'].get('sort.histogram', 0), 3), round(d['median_ms'], 2), 'ms', round(d['mkeys_per_s'] / 1e3, 2),
+    r = d.get('runs_ms') or []
+    print('sort', d['n'], d['pass_kernel'], d['bits'], 'heat', d.get('heat_ms'), 'ms =', d.get('heat_sorts'), 'sorts, runs', [round(x, 2) for x in r], 'spin', d.get('spin_limit'), 'hist groups', d.get('hist_groups'), 'window', d.get('lookback_window'), 'backoff', d.get('lookback_backoff'), 'probe', d.get('probe'), 'hist ms', round(d['stages_median_ms'].get('sort.histogram', 0), 3), round(d['median_ms'], 2), 'ms', round(d['mkeys_per_s'] / 1e3, 2),
           'Gkeys/s, pass GB/s', round(g[len(g) // 2]) if g else '-', 'copy floor GB/s', round(d.get('copy_floor_gb_per_s') or 0), 'count ms', round(c[len(c) // 2], 3) if c else '-', 'look-back', d.get('lookback'), 'verified', d['verified'])
+PY
+kill $SMI 2>/dev/null
+python3 - $X/clocks.csv <<'PY'
+import sys
+sm = []
+for l in open(sys.argv[1]):
+    f = [x.strip() for x in l.split(',')]
+    try: sm.append(float(f[1].split()[0]))
+    except (IndexError, ValueError): pass
+sm.sort()
+print('SM clock during the sort benches (MHz): min', sm[0], 'median', sm[len(sm) // 2], 'max', sm[-1], 'of', len(sm), 'samples') if sm else print('no clock samples:', open(sys.argv[1]).read()[:200])
 PY
 IFS=';' read -ra BT <<< "$BENCH_TRAIN"
 for cfg in "${BT[@]}"; do set -- $cfg

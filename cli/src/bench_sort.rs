@@ -37,6 +37,13 @@ pub struct SortArgs {
     /// Untimed warm-up runs.
     #[arg(long, default_value_t = 2)]
     warmup: u32,
+    /// Milliseconds of untimed sorts recorded before each run, in its submission, so
+    /// that the device is busy when the timed sort starts (default: 200 on GPUs, 0 on
+    /// CPU devices). Every run is verified on the host, and a GPU idles meanwhile: on
+    /// the H200 its clocks fell, and the same kernels timed 5× slower in some
+    /// processes than in others, histogram and passes alike.
+    #[arg(long)]
+    heat_ms: Option<f64>,
     /// Polls of an unpublished look-back word before the pass recounts that tile itself
     /// (default: the device's, 256 on CPU devices, 4096 on GPUs).
     #[arg(long)]
@@ -72,6 +79,9 @@ pub struct SortArgs {
     #[arg(long)]
     json: bool,
 }
+
+/// Most untimed sorts recorded before one run (`--heat-ms` over a fast sort).
+const MAX_HEAT_SORTS: f64 = 256.0;
 
 fn parse_bits(s: &str) -> Result<Range<u32>, String> {
     let (a, b) = s.split_once("..").ok_or("expected LO..HI, e.g. 0..64")?;
@@ -124,6 +134,14 @@ struct SortReport {
     /// Bit p set: pass p was skipped (its digit is the same in every key).
     skipped_passes: u32,
     runs: u32,
+    /// Milliseconds of untimed sorts run back to back before each run (`--heat-ms`).
+    heat_ms: f64,
+    /// Untimed sorts recorded before each timed run (median): heat_ms over the last
+    /// run's GPU time.
+    heat_sorts: u32,
+    /// GPU time of every timed run, in order: a device still changing its clocks shows
+    /// as a trend here.
+    runs_ms: Vec<f64>,
     median_ms: f64,
     mkeys_per_s: f64,
     wall_median_ms: f64,
@@ -168,6 +186,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         ref pass,
         runs,
         warmup,
+        heat_ms,
         spin,
         hist_groups,
         window,
@@ -186,6 +205,10 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         .as_deref()
         .map(|p| p.parse::<PassProbe>().map_err(anyhow::Error::msg))
         .transpose()?;
+    let heat_ms = heat_ms.unwrap_or(if ctx.info().is_cpu { 0.0 } else { 200.0 });
+    if !(0.0..=10_000.0).contains(&heat_ms) {
+        bail!("--heat-ms {heat_ms}: must be between 0 and 10000");
+    }
     if runs < 5 {
         bail!("--runs must be at least 5 (medians of fewer runs are noise on a shared machine)");
     }
@@ -288,9 +311,41 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     let mut stages: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut failed = 0u32;
     let mut lookback: Vec<svraster::sort::LookbackCounters> = Vec::new();
+    // Untimed sorts before each run (`--heat-ms`): as many as the last run's GPU time
+    // says fill heat_ms; none before the first, whose time is not known yet. Timed as
+    // one stage, so that the wall time of the run can leave them out.
+    let mut heat_ts = Timestamps::new(ctx, 2)?;
+    let record_heat = |cmd, heat: u32, heat_ts: &mut Timestamps| -> svraster::Result<()> {
+        if heat == 0 {
+            return Ok(());
+        }
+        heat_ts.begin(cmd);
+        for _ in 0..heat {
+            recorder::copy(ctx, cmd, &src_k, &scratch.keys, 0, 0, n as u64 * 8);
+            recorder::copy(ctx, cmd, &src_v, &scratch.values, 0, 0, n as u64 * 4);
+            recorder::barrier(ctx, cmd);
+            sorter.record(
+                cmd,
+                &scratch.as_buffers(),
+                Count::Host(n),
+                bits.clone(),
+                None,
+            )?;
+            recorder::barrier(ctx, cmd);
+        }
+        heat_ts.mark(cmd, "heat");
+        Ok(())
+    };
+    let mut heat_sorts = Vec::new();
+    let mut last_ms: Option<f64> = None;
     for i in 0..warmup + runs {
+        let heat = match last_ms {
+            Some(ms) if heat_ms > 0.0 => (heat_ms / ms.max(1e-3)).ceil().min(MAX_HEAT_SORTS) as u32,
+            _ => 0,
+        };
         let t0 = Instant::now();
         let which = ctx.submit_and_wait(|cmd| {
+            record_heat(cmd, heat, &mut heat_ts)?;
             recorder::copy(ctx, cmd, &src_k, &scratch.keys, 0, 0, n as u64 * 8);
             recorder::copy(ctx, cmd, &src_v, &scratch.values, 0, 0, n as u64 * 4);
             recorder::barrier(ctx, cmd);
@@ -304,8 +359,16 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
             )?;
             Ok(w)
         })?;
-        let wall = t0.elapsed().as_secs_f64() * 1e3;
         let st = ts.stages()?;
+        let gpu: f64 = st.iter().map(|s| s.1).sum();
+        // Wall time of the timed sort alone: the heat's GPU time taken out.
+        let heat_gpu: f64 = if heat > 0 {
+            heat_ts.stages()?.iter().map(|s| s.1).sum()
+        } else {
+            0.0
+        };
+        let wall = t0.elapsed().as_secs_f64() * 1e3 - heat_gpu;
+        last_ms = Some(gpu);
         let (rk, rv) = scratch.result(which);
         let gk: Vec<u64> = ctx.download(rk, 0, n as usize)?;
         let gv: Vec<u32> = ctx.download(rv, 0, n as usize)?;
@@ -320,8 +383,9 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
             eprintln!("run {i}: WRONG RESULT (first mismatch at {bad:?}, error bits {errors:#x})");
         }
         if i >= warmup {
+            heat_sorts.push(f64::from(heat));
             lookback.push(sorter.last_lookback()?);
-            gpu_ms.push(st.iter().map(|s| s.1).sum());
+            gpu_ms.push(gpu);
             wall_ms.push(wall);
             for (name, ms) in st {
                 stages.entry(name).or_default().push(ms);
@@ -331,8 +395,16 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     // The floor: the device copies the same pairs (what a pass reads and writes).
     let mut floor_ts = Timestamps::new(ctx, 2)?;
     let mut floor_ms = Vec::new();
+    let heat = if heat_ms > 0.0 {
+        (heat_ms / median(&gpu_ms).max(1e-3))
+            .ceil()
+            .min(MAX_HEAT_SORTS) as u32
+    } else {
+        0
+    };
     for i in 0..warmup + runs {
         ctx.submit_and_wait(|cmd| {
+            record_heat(cmd, heat, &mut heat_ts)?;
             floor_ts.begin(cmd);
             recorder::copy(ctx, cmd, &src_k, &scratch.keys_alt, 0, 0, n as u64 * 8);
             recorder::copy(ctx, cmd, &src_v, &scratch.values_alt, 0, 0, n as u64 * 4);
@@ -401,6 +473,9 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         passes,
         skipped_passes: skipped,
         runs,
+        heat_ms,
+        heat_sorts: median(&heat_sorts) as u32,
+        runs_ms: gpu_ms.clone(),
         median_ms: med,
         mkeys_per_s: n as f64 / med / 1e3,
         wall_median_ms: median(&wall_ms),
@@ -436,6 +511,14 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
             report.device
         );
         println!("  GPU   median {:9.2} ms  {:8.2} Mkeys/s  (timestamps; wall {:.2} ms; {} runs after {} warm-up)", med, report.mkeys_per_s, report.wall_median_ms, runs, warmup);
+        if heat_ms > 0.0 {
+            println!(
+                "    each run after {} untimed sorts in its submission (--heat-ms {heat_ms}: the device busy before it)",
+                report.heat_sorts
+            );
+        }
+        let each: Vec<String> = report.runs_ms.iter().map(|t| format!("{t:.2}")).collect();
+        println!("    runs in order: {} ms", each.join(", "));
         let mut names: Vec<_> = report.stages_median_ms.iter().collect();
         names.sort_by_key(|(k, _)| stage_order(k));
         for (k, v) in names {

@@ -376,6 +376,67 @@ fn bench_sort_probes_are_checked_and_named() {
     }
 }
 
+/// `bench sort --heat-ms`: untimed sorts recorded before each run in its submission (off
+/// by default on a CPU device), named in the JSON with every run's time; the timed sort
+/// after them is still verified, and an out-of-range value is one clear error.
+#[test]
+fn bench_sort_heat_runs_before_each_timed_sort() {
+    let run = |extra: &[&str]| {
+        let mut a = vec![
+            "bench",
+            "sort",
+            "--n",
+            "5000",
+            "--runs",
+            "5",
+            "--warmup",
+            "1",
+            "--no-baseline",
+            "--json",
+        ];
+        a.extend(extra);
+        let (ok, out, err) = svraster(&a);
+        assert!(ok, "{extra:?}: {err}");
+        serde_json::from_str::<serde_json::Value>(out.trim()).expect("bench sort JSON")
+    };
+    let v = run(&[]);
+    assert_eq!(v["heat_ms"], 0.0, "no heat on a CPU device by default: {v}");
+    assert_eq!(v["heat_sorts"], 0, "{v}");
+    assert_eq!(v["runs_ms"].as_array().unwrap().len(), 5, "{v}");
+    // A heat longer than any sort of 5 000 keys here: at least one sort before each run.
+    let v = run(&["--heat-ms", "1000"]);
+    assert_eq!(v["heat_ms"], 1000.0, "{v}");
+    let sorts = v["heat_sorts"].as_u64().unwrap();
+    assert!((1..=256).contains(&sorts), "{v}");
+    assert_eq!(v["verified"], true, "{v}");
+    let runs: Vec<f64> = v["runs_ms"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_f64().unwrap())
+        .collect();
+    assert_eq!(runs.len(), 5, "{v}");
+    assert!(runs.iter().all(|&t| t > 0.0), "{v}");
+    // The wall time of a run leaves its heat out (timed apart).
+    let wall = v["wall_median_ms"].as_f64().unwrap();
+    let heat_total = sorts as f64 * v["median_ms"].as_f64().unwrap();
+    if sorts >= 8 {
+        assert!(wall < heat_total / 2.0, "{wall} ms wall: {v}");
+    }
+    let (ok, _, err) = svraster(&[
+        "bench",
+        "sort",
+        "--n",
+        "5000",
+        "--runs",
+        "5",
+        "--heat-ms",
+        "20000",
+    ]);
+    assert!(!ok && err.contains("--heat-ms"), "{err}");
+    assert_eq!(err.trim().lines().count(), 1, "one error line: {err}");
+}
+
 /// A voxel budget below the starting grid is refused before training (not a run that
 /// silently never subdivides), and leaves no run behind.
 #[test]
