@@ -434,7 +434,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
     eprintln!(
         "training {} voxels (level-{} grid, voxels no camera sees removed; layout {}, \
          budget {} voxels: {budget_source}) on {} views of {}{}×{} for {} iterations \
-         (density learning rate {}) → {}",
+         (learning rates: density {}, SH {} / {}) → {}",
         trainer.voxels(),
         cfg.grid_level,
         format!("{:?}", cfg.layout).to_lowercase(),
@@ -445,6 +445,8 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         train.height,
         cfg.iters,
         trainer.schedule().lr_geo,
+        trainer.schedule().lr_sh0,
+        trainer.schedule().lr_shs,
         run.display()
     );
     let long_run = ctx.info().is_cpu.then(|| LongRun {

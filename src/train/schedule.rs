@@ -11,6 +11,10 @@ use super::config::{Layout, TrainConfig};
 pub struct Schedule {
     /// The density learning rate used (before the decay), see [`TrainConfig::lr_geo_used`].
     pub lr_geo: f32,
+    /// The SH learning rates used (before the decay), see
+    /// [`TrainConfig::lr_colour_used`].
+    pub lr_sh0: f32,
+    pub lr_shs: f32,
     /// Iterations at which the SH degree goes up by one.
     pub sh_degree_up: Vec<u32>,
     pub ss_from: u32,
@@ -119,8 +123,11 @@ impl TrainConfig {
                 }
             }
         }
+        let (lr_sh0, lr_shs) = self.lr_colour_used();
         Schedule {
             lr_geo: self.lr_geo_used(),
+            lr_sh0,
+            lr_shs,
             adapt,
             sh_degree_up: sh,
             ss_from: at(self.ss_from, n),

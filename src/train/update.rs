@@ -150,7 +150,7 @@ impl Trainer {
                 &self.grads.sh0,
                 &self.mom[1],
                 self.scene.voxels as u64 * 3,
-                cfg.lr_sh0,
+                self.schedule.lr_sh0,
             ),
             (
                 "optimizer.shs",
@@ -162,7 +162,7 @@ impl Trainer {
                     self.scene.voxels as usize,
                     3 * self.scene.shs_per_voxel as usize,
                 ) as u64,
-                cfg.lr_shs,
+                self.schedule.lr_shs,
             ),
         ];
         for (label, p, g, m, count, lr) in groups {

@@ -1,4 +1,5 @@
 use super::*;
+use svraster::train::config::ClampGrad;
 
 /// The speed modifiers apply to any preset, bare ones to the data format's, and are the
 /// measured combinations (README "Speed ↔ accuracy").
@@ -10,6 +11,30 @@ fn speed_presets_modify_any_preset() {
     // speed modifiers keep the measured rate-2 guard.
     assert_eq!(syn.subdivide_min_rate, 1.0);
     assert_eq!(p("quick").subdivide_min_rate, 2.0);
+    // SVRaster's 6 000-iteration learning rules in the synthetic preset; the speed
+    // modifiers and the other presets keep the rules they were measured with.
+    let rules = |c: &TrainConfig| {
+        (
+            c.colour_clamp_grad,
+            c.lr_colour_scale_max,
+            c.lr_geo,
+            c.reset_adam_at_adapt,
+        )
+    };
+    assert_eq!(rules(&syn), (ClampGrad::Straight, 1.0 / 0.3, 0.0833, true));
+    let d = TrainConfig::default();
+    assert_eq!(rules(&d), (ClampGrad::Masked, 1.0, 0.1, false));
+    for n in [
+        "synthetic-fast-train",
+        "synthetic-fast-render",
+        "quick",
+        "real",
+        "forward",
+        "object",
+        "mesh",
+    ] {
+        assert_eq!(rules(&p(n)), rules(&d), "{n}");
+    }
     let ft = p("synthetic-fast-train");
     assert_eq!(
         (ft.ss, ft.grid_level, ft.sh_degree, ft.subdivide_min_rate),
@@ -139,6 +164,37 @@ fn schedule_is_fractions_of_the_run() {
     }
     c.lr_geo_scale_max = 1.0;
     assert_eq!(c.lr_geo_used(), 0.025);
+    // The SH rates: as set by default at every length; SVRaster's sche_mult rule,
+    // 20 000 / iters times them, capped by lr_colour_scale_max (the synthetic preset:
+    // 1/0.3, SVRaster's 6 000-iteration rates for every shorter run).
+    for iters in [300, 3_000, 20_000, 40_000] {
+        let c = TrainConfig {
+            iters,
+            ..TrainConfig::default()
+        };
+        assert_eq!(c.lr_colour_used(), (0.01, 0.00025), "{iters}");
+    }
+    let mut c = TrainConfig::preset("synthetic").unwrap();
+    for (iters, f) in [
+        (40_000, 1.0),
+        (20_000, 1.0),
+        (10_000, 2.0),
+        (6_000, 1.0 / 0.3),
+        (3_000, 1.0 / 0.3),
+        (300, 1.0 / 0.3),
+    ] {
+        c.iters = iters;
+        let (sh0, shs) = c.lr_colour_used();
+        assert!(
+            (sh0 / 0.01 - f).abs() < 1e-4 && (shs / 0.00025 - f).abs() < 1e-4,
+            "{iters}: {sh0} {shs}"
+        );
+        assert_eq!((c.schedule().lr_sh0, c.schedule().lr_shs), (sh0, shs));
+    }
+    // An extended run keeps its schedule's rates.
+    c.iters = 40_000;
+    c.schedule_iters = Some(6_000);
+    assert!((c.lr_colour_used().0 - 0.01 / 0.3).abs() < 1e-6);
 }
 
 #[test]
