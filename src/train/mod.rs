@@ -10,6 +10,7 @@ mod init;
 mod iteration;
 pub mod loss;
 pub mod optim;
+mod presets;
 mod queue;
 mod schedule;
 pub mod ssim;
