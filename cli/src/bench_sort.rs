@@ -83,6 +83,15 @@ pub struct SortArgs {
 /// Most untimed sorts recorded before one run (`--heat-ms` over a fast sort).
 const MAX_HEAT_SORTS: f64 = 256.0;
 
+/// Untimed sorts that fill `heat_ms` when one takes `sort_ms` (0 without heat).
+fn heat_sorts_for(heat_ms: f64, sort_ms: f64) -> u32 {
+    if heat_ms > 0.0 {
+        (heat_ms / sort_ms.max(1e-3)).ceil().min(MAX_HEAT_SORTS) as u32
+    } else {
+        0
+    }
+}
+
 fn parse_bits(s: &str) -> Result<Range<u32>, String> {
     let (a, b) = s.split_once("..").ok_or("expected LO..HI, e.g. 0..64")?;
     let lo: u32 = a.trim().parse().map_err(|_| format!("bad LO `{a}`"))?;
@@ -339,10 +348,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     let mut heat_sorts = Vec::new();
     let mut last_ms: Option<f64> = None;
     for i in 0..warmup + runs {
-        let heat = match last_ms {
-            Some(ms) if heat_ms > 0.0 => (heat_ms / ms.max(1e-3)).ceil().min(MAX_HEAT_SORTS) as u32,
-            _ => 0,
-        };
+        let heat = last_ms.map_or(0, |ms| heat_sorts_for(heat_ms, ms));
         let t0 = Instant::now();
         let which = ctx.submit_and_wait(|cmd| {
             record_heat(cmd, heat, &mut heat_ts)?;
@@ -395,13 +401,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     // The floor: the device copies the same pairs (what a pass reads and writes).
     let mut floor_ts = Timestamps::new(ctx, 2)?;
     let mut floor_ms = Vec::new();
-    let heat = if heat_ms > 0.0 {
-        (heat_ms / median(&gpu_ms).max(1e-3))
-            .ceil()
-            .min(MAX_HEAT_SORTS) as u32
-    } else {
-        0
-    };
+    let heat = heat_sorts_for(heat_ms, median(&gpu_ms));
     for i in 0..warmup + runs {
         ctx.submit_and_wait(|cmd| {
             record_heat(cmd, heat, &mut heat_ts)?;
