@@ -320,8 +320,9 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     let mut stages: BTreeMap<String, Vec<f64>> = BTreeMap::new();
     let mut failed = 0u32;
     let mut lookback: Vec<svraster::sort::LookbackCounters> = Vec::new();
-    // Untimed sorts before each run (`--heat-ms`): as many as the last run's GPU time
-    // says fill heat_ms; none before the first, whose time is not known yet. Timed as
+    // Untimed sorts before each run (`--heat-ms`): as many as the fastest run so far
+    // says fill heat_ms (a run timed at cold clocks would under-count them); none before
+    // the first, whose time is not known yet. Timed as
     // one stage, so that the wall time of the run can leave them out.
     let mut heat_ts = Timestamps::new(ctx, 2)?;
     let record_heat = |cmd, heat: u32, heat_ts: &mut Timestamps| -> svraster::Result<()> {
@@ -346,9 +347,9 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         Ok(())
     };
     let mut heat_sorts = Vec::new();
-    let mut last_ms: Option<f64> = None;
+    let mut fastest_ms: Option<f64> = None;
     for i in 0..warmup + runs {
-        let heat = last_ms.map_or(0, |ms| heat_sorts_for(heat_ms, ms));
+        let heat = fastest_ms.map_or(0, |ms| heat_sorts_for(heat_ms, ms));
         let t0 = Instant::now();
         let which = ctx.submit_and_wait(|cmd| {
             record_heat(cmd, heat, &mut heat_ts)?;
@@ -374,7 +375,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
             0.0
         };
         let wall = t0.elapsed().as_secs_f64() * 1e3 - heat_gpu;
-        last_ms = Some(gpu);
+        fastest_ms = Some(fastest_ms.map_or(gpu, |f: f64| f.min(gpu)));
         let (rk, rv) = scratch.result(which);
         let gk: Vec<u64> = ctx.download(rk, 0, n as usize)?;
         let gv: Vec<u32> = ctx.download(rv, 0, n as usize)?;

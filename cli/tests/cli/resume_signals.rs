@@ -399,9 +399,17 @@ fn bench_sort_heat_runs_before_each_timed_sort() {
         assert!(ok, "{extra:?}: {err}");
         serde_json::from_str::<serde_json::Value>(out.trim()).expect("bench sort JSON")
     };
+    // The default: none on a CPU device, 200 ms on a GPU (`info --json` says which).
+    let (ok, info, err) = svraster(&["info", "--json"]);
+    assert!(ok, "info: {err}");
+    let info: serde_json::Value = serde_json::from_str(info.trim()).expect("info JSON");
+    let cpu = info["is_cpu"].as_bool().expect("info --json names is_cpu");
     let v = run(&[]);
-    assert_eq!(v["heat_ms"], 0.0, "no heat on a CPU device by default: {v}");
-    assert_eq!(v["heat_sorts"], 0, "{v}");
+    let want = if cpu { 0.0 } else { 200.0 };
+    assert_eq!(v["heat_ms"], want, "default heat (CPU device {cpu}): {v}");
+    if cpu {
+        assert_eq!(v["heat_sorts"], 0, "{v}");
+    }
     assert_eq!(v["runs_ms"].as_array().unwrap().len(), 5, "{v}");
     // A heat longer than any sort of 5 000 keys here: at least one sort before each run.
     let v = run(&["--heat-ms", "1000"]);
