@@ -1,39 +1,74 @@
 #!/usr/bin/env bash
-# Sort sweep for a lent GPU (issue 33, "the onesweep sort at a GPU's speed"): `bench sort`
-# of 2^24 u64 keys + u32 values with each pass kernel (direct = lavapipe's, c128 and c256
-# = coalesced writes through shared memory, s128 and s256 = the same without look-back,
-# reduce-then-scan), all 64 bits and a frame-like 0..40, then
-# with keys that vary only in 0..40 (three passes skipped). One process per run,
-# kernels alternating, 2 rounds. Prepare here with ../shared/gpu/prepare.sh .gpu (see
-# ../shared/gpu/README.md), then on the device, from the checkout's root, in one call:
-#   bash tools/gpu_sort.sh .gpu
-# (~1–2 min on an H200; it can follow `bash .gpu/run.sh 360` in the same call). Writes
-# $OUT/sort.jsonl (one bench JSON per line) and prints a table with GB/s per pass.
+# The sort on a lent GPU in one short call (issue 33, "the onesweep sort at a GPU's
+# speed"; ~3 min on an H200 with a warm start). Prepare here with tools/gpu_prepare.sh
+# .gpu, then on the device, from the checkout's root, carry .gpu:
+#   bash tools/gpu_sort.sh .gpu [A_ARGS] [B_ARGS]
+# 1. `bench sort` of 2^24 u64 keys + u32 values (8 passes, every run verified, each its
+#    own process): the default against A_ARGS and B_ARGS (default "--window 4" and
+#    "--pass s256"), alternating, 2 rounds; then 40 bits (5 passes) and 2^22 keys;
+#    the SM clock logged throughout (--heat-ms keeps the card busy before each run)
+# 2. while a lego 400² model trains (3 000 iterations; its time is not a result): the
+#    suite's sort tests and the bench sort cli tests, on this card's defaults
+# 3. `bench render` of that model's 20 test views with each pass kernel
+#    (SVRASTER_SORT_PASS direct, c256, s256, alternating): the frame's sort stage
+# $OUT: run.log, sort.jsonl, render_*.json, test logs. A dry run on lavapipe (small):
+# SORT_N=65536 SORT_SMALL=16384 ITERS=60 OUT=/tmp/o bash tools/gpu_sort.sh .gpu "--pass c128" "--pass s128"
 set -u
-G=$(cd "${1:-.gpu}" && pwd); O=${OUT:-/tmp/out}; mkdir -p "$O"
+G=$(cd "${1:-.gpu}" && pwd); A=${2:---window 4}; BB=${3:---pass s256}
+O=${OUT:-/tmp/out}; mkdir -p "$O"
+N=${SORT_N:-16777216}; N2=${SORT_SMALL:-4194304}; ITERS=${ITERS:-3000}
+exec > >(tee -a "$O/run.log") 2>&1
+t0=$(date +%s); stamp() { echo "### t=$(( $(date +%s) - t0 ))s :: $*"; }
 . "$(dirname "$0")/gpu_kit.sh"
-: > "$O/sort.jsonl"
+kit_lego
+P=$(cat "$G/project_path")
+stamp "bench sort"
+nvidia-smi --query-gpu=timestamp,clocks.sm --format=csv,noheader -lms 200 > "$O/clocks.csv" 2>&1 &
+SMI=$!
 for round in 1 2; do
-  for args in "--bits 0..64" "--bits 0..40" "--bits 0..64 --vary 0..40"; do
-    for pass in direct c128 c256 s128 s256; do
-      timeout 60 "$B" bench sort --n 16777216 --runs 5 --warmup 2 --pass $pass $args --json \
-        >> "$O/sort.jsonl" 2>> "$O/sort.err" \
-        || echo "bench sort --pass $pass $args failed: $(tail -2 "$O/sort.err")"
-    done
+  for a in "" "$A" "$BB"; do
+    timeout 40 "$B" bench sort --n $N --runs 5 --warmup 2 --no-baseline $a --json >> "$O/sort.jsonl" 2>> "$O/sort.err"
   done
 done
-python3 - "$O/sort.jsonl" <<'PY'
+timeout 40 "$B" bench sort --n $N --runs 5 --warmup 2 --no-baseline --bits 0..40 --json >> "$O/sort.jsonl" 2>> "$O/sort.err"
+timeout 40 "$B" bench sort --n $N2 --runs 5 --warmup 2 --no-baseline --json >> "$O/sort.jsonl" 2>> "$O/sort.err"
+kill $SMI 2>/dev/null
+python3 - "$O/sort.jsonl" "$O/clocks.csv" <<'PY'
 import json, sys
-rows = [json.loads(l) for l in open(sys.argv[1]) if l.strip()]
-print("| pass | bits | vary | skipped | ms | Gkeys/s | histogram GB/s | pass GB/s (median) | look-back words/digit, polls/tile, fallbacks/run | verified |")
-print("|---|---|---|---|---|---|---|---|---|---|")
-for r in rows:
-    g = r["stages_gb_per_s"]
-    ps = sorted(v for k, v in g.items() if k.startswith("sort.pass"))
-    pm = ps[len(ps) // 2] if ps else 0
-    lb = r.get("lookback") or {}
-    print(f"| {r['pass_kernel']} | {r['bits']} | {r['vary']} | {bin(r['skipped_passes']).count('1')} | "
-          f"{r['median_ms']:.2f} | {r['mkeys_per_s'] / 1e3:.2f} | {g.get('sort.histogram', 0):.0f} | "
-          f"{pm:.0f} | {lb.get('steps_per_digit_tile', 0):.2f}, {lb.get('waits_per_tile', 0):.0f}, "
-          f"{lb.get('fallbacks_per_run', 0):.0f} | {r['verified']} |")
+for l in open(sys.argv[1]):
+    d = json.loads(l)
+    p = sorted(v for k, v in d['stages_median_ms'].items() if k.startswith('sort.pass'))
+    g = sorted(v for k, v in d['stages_gb_per_s'].items() if k.startswith('sort.pass'))
+    print('sort', d['n'], d['pass_kernel'], d['bits'], 'window', d.get('lookback_window'), 'heat', d.get('heat_ms'), 'ms /', d.get('heat_sorts'),
+          'runs', [round(x, 2) for x in d.get('runs_ms') or []], '->', round(d['median_ms'], 3), 'ms =', round(d['mkeys_per_s'] / 1e3, 2), 'Gkeys/s;',
+          'pass', round(p[len(p) // 2], 3) if p else '-', 'ms', round(g[len(g) // 2]) if g else '-', 'GB/s; histogram', round(d['stages_median_ms'].get('sort.histogram', 0), 3),
+          'ms; look-back', d.get('lookback'), 'verified', d['verified'])
+sm = []
+for l in open(sys.argv[2]):
+    try: sm.append(float(l.split(',')[1].split()[0]))
+    except (IndexError, ValueError): pass
+sm.sort()
+if sm: print('SM clock (MHz): min', sm[0], 'median', sm[len(sm) // 2], 'max', sm[-1], 'of', len(sm))
 PY
+stamp "train (tests beside it)"
+( timeout 120 "$B" train /tmp/lego --out /tmp/runs/m --iters $ITERS > "$O/train.log" 2>&1; echo "train rc=$?" >> "$O/train.log" ) &
+TR=$!
+cd "$P"
+for t in target/release/deps/suite-* target/release/deps/cli-*; do
+  case $t in *.*) continue;; esac
+  n=$(basename "$t"); f=sort; [ "${n%-*}" = cli ] && f=bench_sort
+  timeout 100 "$t" "$f" --test-threads=4 > "$O/test_${n%-*}.log" 2>&1
+  echo "TEST ${n%-*} ($f) rc=$? $(grep -E '^test result' "$O/test_${n%-*}.log" | tail -1)"
+  grep -h -E "^test .* FAILED|panicked at" "$O/test_${n%-*}.log" | head -10
+done
+wait $TR; tail -2 "$O/train.log"
+stamp "bench render"
+for round in 1 2; do
+  for p in direct c256 s256; do
+    SVRASTER_SORT_PASS=$p timeout 40 "$B" bench render /tmp/runs/m --data /tmp/lego --split test --views 20 --runs 3 --json > "$O/render_${p}_$round.json" 2> "$O/render_$p.err"
+    echo "exit $? (124: timed out)" >> "$O/render_$p.err"
+    python3 2>/dev/null -c "import json; d=json.load(open('$O/render_${p}_$round.json')); print('render', d.get('sort_pass'), 'voxels', d.get('voxels'), 'GPU', round(d['median_ms'], 3), 'ms, wall', round(d['wall_median_ms'], 3), 'ms;', {k: round(v, 3) for k, v in d['stages_median_ms'].items() if 'sort' in k})" ||
+      { echo "bench render ($p) failed:"; tail -3 "$O/render_$p.err"; }
+  done
+done
+stamp done

@@ -148,6 +148,8 @@ struct SortReport {
     /// Untimed sorts recorded before each timed run (median): heat_ms over the last
     /// run's GPU time.
     heat_sorts: u32,
+    /// GPU time of those untimed sorts before each timed run (median; 0 without heat).
+    heat_gpu_ms: f64,
     /// GPU time of every timed run, in order: a device still changing its clocks shows
     /// as a trend here.
     runs_ms: Vec<f64>,
@@ -347,6 +349,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         Ok(())
     };
     let mut heat_sorts = Vec::new();
+    let mut heat_gpu_ms = Vec::new();
     let mut fastest_ms: Option<f64> = None;
     for i in 0..warmup + runs {
         let heat = fastest_ms.map_or(0, |ms| heat_sorts_for(heat_ms, ms));
@@ -391,6 +394,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         }
         if i >= warmup {
             heat_sorts.push(f64::from(heat));
+            heat_gpu_ms.push(heat_gpu);
             lookback.push(sorter.last_lookback()?);
             gpu_ms.push(gpu);
             wall_ms.push(wall);
@@ -476,6 +480,7 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         runs,
         heat_ms,
         heat_sorts: median(&heat_sorts) as u32,
+        heat_gpu_ms: median(&heat_gpu_ms),
         runs_ms: gpu_ms.clone(),
         median_ms: med,
         mkeys_per_s: n as f64 / med / 1e3,
