@@ -51,6 +51,11 @@ pub enum BenchCmd {
         /// count, 256 to 2048, raster::auto_segment_entries).
         #[arg(long)]
         segments: Option<u32>,
+        /// Warm-up lasts at least this long: after one frame per view, the views again
+        /// until it has (a GPU left idle lowers its clocks; default 300 on GPUs, 0 on
+        /// CPU devices).
+        #[arg(long, value_name = "MS")]
+        warmup_ms: Option<f64>,
         #[arg(long)]
         json: bool,
     },
@@ -73,6 +78,10 @@ pub enum BenchCmd {
         /// Untimed warm-up iterations.
         #[arg(long, default_value_t = 3)]
         warmup: u32,
+        /// Warm-up lasts at least this long: iterations past --warmup until it has (a GPU
+        /// left idle lowers its clocks; default 300 on GPUs, 0 on CPU devices).
+        #[arg(long, value_name = "MS")]
+        warmup_ms: Option<f64>,
         /// Entries per segment of a tile's list in the composite (0: segments off;
         /// default: the device's: 0 on CPU devices; on GPUs chosen per frame from its tile
         /// count, 256 to 2048, raster::auto_segment_entries).
@@ -148,6 +157,7 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             samples,
             ss,
             segments,
+            warmup_ms,
             json,
         } => bench_render(
             ctx,
@@ -162,6 +172,7 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
                 samples,
                 ss,
                 segments,
+                warmup_ms: warmup_ms_for(ctx, warmup_ms)?,
             },
             json,
         ),
@@ -172,6 +183,7 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             set,
             iters,
             warmup,
+            warmup_ms,
             segments,
             json,
         } => {
@@ -179,6 +191,10 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
             let preset = match preset {
                 Some(p) => svraster::train::config::TrainConfig::resolve_preset(&p, format),
                 None => format.into(),
+            };
+            let warmup = Warmup {
+                at_least: warmup,
+                ms: warmup_ms_for(ctx, warmup_ms)?,
             };
             bench_train(
                 ctx, &data, downscale, &preset, &set, iters, warmup, segments, json,
@@ -225,6 +241,27 @@ pub fn run(ctx: &Context, cmd: BenchCmd) -> anyhow::Result<()> {
     }
 }
 
+/// Most warm-up frames or iterations `--warmup-ms` adds (a bound on a mistyped value).
+const MAX_WARMUP: u32 = 100_000;
+
+/// `--warmup-ms` checked, or the device's default: 300 ms on GPUs (on the H200 a process
+/// whose card had idled ran the same kernels up to 5× slower until its clocks rose:
+/// docs/NVIDIA.md), none on CPU devices.
+fn warmup_ms_for(ctx: &Context, ms: Option<f64>) -> anyhow::Result<f64> {
+    let ms = ms.unwrap_or(if ctx.info().is_cpu { 0.0 } else { 300.0 });
+    if !(0.0..=60_000.0).contains(&ms) {
+        bail!("--warmup-ms {ms}: must be between 0 and 60000");
+    }
+    Ok(ms)
+}
+
+/// `bench train`'s warm-up: at least this many iterations, and on until `ms` have passed.
+#[derive(Clone, Copy)]
+struct Warmup {
+    at_least: u32,
+    ms: f64,
+}
+
 #[allow(clippy::too_many_arguments)]
 /// What `bench render` measures.
 struct RenderBench {
@@ -239,6 +276,8 @@ struct RenderBench {
     /// Supersampling (None: the model's).
     ss: Option<f32>,
     segments: Option<u32>,
+    /// Warm-up lasts at least this long (ms).
+    warmup_ms: f64,
 }
 
 fn bench_render(ctx: &Context, b: &RenderBench, json: bool) -> anyhow::Result<()> {
@@ -265,10 +304,20 @@ fn bench_render(ctx: &Context, b: &RenderBench, json: bool) -> anyhow::Result<()
         r.set_segment_entries(s);
     }
     let mut pools = [Timestamps::new(ctx, 32)?, Timestamps::new(ctx, 32)?];
-    // Warm-up: pipelines compiled, buffers grown to what every view needs.
+    // Warm-up: pipelines compiled, buffers grown to what every view needs; then the
+    // views queued again until --warmup-ms have passed (the device's clocks up).
+    let warm = Instant::now();
     for cam in &cams {
         r.render_to_device(&gpu, cam, &opts, None)?;
     }
+    let mut warmup_frames = cams.len() as u32;
+    while warm.elapsed().as_secs_f64() * 1e3 < b.warmup_ms && warmup_frames < MAX_WARMUP {
+        r.render_each(&gpu, &cams, &opts, |_, _, _| -> anyhow::Result<()> {
+            Ok(())
+        })?;
+        warmup_frames += cams.len() as u32;
+    }
+    let warmup_wall_ms = warm.elapsed().as_secs_f64() * 1e3;
     let mut frame_ms = Vec::new();
     let mut wall_ms = Vec::new();
     let mut stages: BTreeMap<String, Vec<f64>> = BTreeMap::new();
@@ -350,6 +399,9 @@ fn bench_render(ctx: &Context, b: &RenderBench, json: bool) -> anyhow::Result<()
             "height": h,
             "views": cams.len(),
             "frames_timed": frame_ms.len(),
+            "warmup_ms": b.warmup_ms,
+            "warmup_frames": warmup_frames,
+            "warmup_wall_ms": warmup_wall_ms,
             "samples": opts.samples,
             "supersample": opts.supersample,
             "median_ms": median(&frame_ms),
@@ -382,7 +434,8 @@ fn bench_render(ctx: &Context, b: &RenderBench, json: bool) -> anyhow::Result<()
         );
         println!(
             "  median {:.2} ms per frame (GPU timestamps, frames queued), {:.2} ms wall \
-             queued with the image read back ({:.2} ms with the timestamps)",
+             queued with the image read back ({:.2} ms with the timestamps); after \
+             {warmup_frames} warm-up frames in {warmup_wall_ms:.0} ms",
             median(&frame_ms),
             median(&queued_ms),
             median(&wall_ms)
@@ -428,7 +481,7 @@ fn bench_train(
     preset: &str,
     set: &[String],
     iters: u32,
-    warmup: u32,
+    warmup: Warmup,
     segments: Option<u32>,
     json: bool,
 ) -> anyhow::Result<()> {
@@ -492,12 +545,18 @@ fn bench_train(
             groups.entry(k).or_default().push(v);
         }
     };
-    for _ in 0..warmup {
+    let warm = Instant::now();
+    let mut warmup_iters = 0u32;
+    while warmup_iters < warmup.at_least
+        || (warm.elapsed().as_secs_f64() * 1e3 < warmup.ms && warmup_iters < MAX_WARMUP)
+    {
         t.step(false)?;
+        warmup_iters += 1;
     }
     // The warm-up's last iteration settled and its times dropped: from here on every
     // settled iteration is a timed one.
     t.flush()?;
+    let warmup_wall_ms = warm.elapsed().as_secs_f64() * 1e3;
     t.take_stage_times();
     for _ in 0..iters {
         let w = Instant::now();
@@ -515,6 +574,7 @@ fn bench_train(
     // throughput, and the queue traffic what a steady iteration costs the host.
     t.set_timing(false)?;
     let mut queued_wall = Vec::new();
+    let (warmup, warmup_ms) = (warmup.at_least, warmup.ms);
     for i in 0..warmup + iters {
         let c0 = ctx.queue_counters();
         let w = Instant::now();
@@ -566,6 +626,9 @@ fn bench_train(
             "wall_median_ms_per_iter": median(&queued_wall),
             "wall_timed_median_ms_per_iter": median(&wall),
             "timed_iterations": total.len(),
+            "warmup_ms": warmup_ms,
+            "warmup_iters": warmup_iters,
+            "warmup_wall_ms": warmup_wall_ms,
             "stages_median_ms": med.iter().map(|(k, v)| (k.to_string(), *v)).collect::<BTreeMap<_, _>>(),
             "parts_median_ms": part_order.iter().map(|k| (k.clone(), median(&parts[k]))).collect::<BTreeMap<_, _>>(),
             "subgroup_size": ctx.info().subgroup_size,
@@ -591,7 +654,8 @@ fn bench_train(
         );
         println!(
             "median {:.1} ms per iteration on the GPU timeline; wall {:.1} ms queued \
-             ({:.1} ms with the timestamps)",
+             ({:.1} ms with the timestamps); after {warmup_iters} warm-up iterations in \
+             {warmup_wall_ms:.0} ms",
             median(&total),
             median(&queued_wall),
             median(&wall)

@@ -170,6 +170,51 @@ fn demo_then_render_and_bench() {
     assert_eq!(v["frames_timed"], 2, "{v}");
     assert!(v["wall_timed_median_ms"].as_f64().unwrap() > 0.0, "{v}");
     assert!(v["wall_median_ms"].as_f64().unwrap() > 0.0, "{v}");
+    // Warm-up: one frame per view, then (--warmup-ms; by default on GPUs only) the
+    // views again until it has lasted that long.
+    let model = dir.path().join("run/model.safetensors");
+    let data = dir.path().join("data");
+    let warm = |ms: &str| {
+        let a = [
+            "bench",
+            "render",
+            model.to_str().unwrap(),
+            "--data",
+            data.to_str().unwrap(),
+            "--views",
+            "2",
+            "--runs",
+            "1",
+            "--warmup-ms",
+            ms,
+            "--json",
+        ];
+        let (ok, out, err) = svraster(&a);
+        assert!(ok, "{ms}: {err}");
+        serde_json::from_str::<serde_json::Value>(out.trim()).expect("bench JSON")
+    };
+    if v["warmup_ms"] == 0.0 {
+        assert_eq!(v["warmup_frames"], 2, "{v}");
+    }
+    let w = warm("400");
+    assert_eq!(w["warmup_ms"], 400.0, "{w}");
+    assert!(w["warmup_wall_ms"].as_f64().unwrap() >= 400.0, "{w}");
+    assert_eq!(
+        w["warmup_frames"].as_u64().unwrap() % 2,
+        0,
+        "whole rounds: {w}"
+    );
+    assert!(w["warmup_frames"].as_u64().unwrap() >= 4, "{w}");
+    let (ok, _, err) = svraster(&[
+        "bench",
+        "render",
+        model.to_str().unwrap(),
+        "--data",
+        data.to_str().unwrap(),
+        "--warmup-ms",
+        "nan",
+    ]);
+    assert!(!ok && err.contains("--warmup-ms"), "{err}");
 }
 
 #[test]
@@ -346,6 +391,33 @@ fn train_interrupt_resume_eval_and_bench() {
     assert!(v["median_ms_per_iter"].as_f64().unwrap() > 0.0);
     // Every timed (queued) iteration's stage times were read, once.
     assert_eq!(v["timed_iterations"], 3, "{v}");
+    // The warm-up: --warmup iterations, more only where --warmup-ms asks (GPUs).
+    if v["warmup_ms"] == 0.0 {
+        assert_eq!(v["warmup_iters"], 1, "{v}");
+    } else {
+        assert!(v["warmup_wall_ms"].as_f64().unwrap() >= v["warmup_ms"].as_f64().unwrap());
+    }
+    let (ok, out, err) = svraster(&[
+        "bench",
+        "train",
+        ds,
+        "--preset",
+        "quick",
+        "--set",
+        "grid_level=3",
+        "--iters",
+        "3",
+        "--warmup",
+        "1",
+        "--warmup-ms",
+        "400",
+        "--json",
+    ]);
+    assert!(ok, "bench train --warmup-ms: {err}");
+    let w: serde_json::Value = serde_json::from_str(out.trim()).expect("bench JSON");
+    assert_eq!(w["warmup_ms"], 400.0, "{w}");
+    assert!(w["warmup_wall_ms"].as_f64().unwrap() >= 400.0, "{w}");
+    assert!(w["warmup_iters"].as_u64().unwrap() >= 1, "{w}");
     assert!(v["wall_timed_median_ms_per_iter"].as_f64().unwrap() > 0.0);
     // The full-model regime: the timed iterations used the final SH degree.
     assert_eq!(v["sh_degree"], 3, "{v}");
