@@ -53,7 +53,7 @@ pub enum BenchCmd {
         segments: Option<u32>,
         /// Warm-up lasts at least this long: after one frame per view, the views again
         /// until it has (a GPU left idle lowers its clocks; default 300 on GPUs, 0 on
-        /// CPU devices).
+        /// CPU devices; at most 100 000 frames).
         #[arg(long, value_name = "MS")]
         warmup_ms: Option<f64>,
         #[arg(long)]
@@ -79,7 +79,8 @@ pub enum BenchCmd {
         #[arg(long, default_value_t = 3)]
         warmup: u32,
         /// Warm-up lasts at least this long: iterations past --warmup until it has (a GPU
-        /// left idle lowers its clocks; default 300 on GPUs, 0 on CPU devices).
+        /// left idle lowers its clocks; default 300 on GPUs, 0 on CPU devices; at most
+        /// 100 000 iterations). Warm-up iterations train the model as the timed ones do.
         #[arg(long, value_name = "MS")]
         warmup_ms: Option<f64>,
         /// Entries per segment of a tile's list in the composite (0: segments off;
@@ -506,7 +507,12 @@ fn bench_train(
     {
         cfg.lambda_dist = 0.1;
     }
-    cfg.iters = 1;
+    // A long schedule with no adaptive steps: every milestone's switch holds for every
+    // iteration run here (TV until the end of a 10^6-iteration schedule; a 1-iteration
+    // schedule, as before 2026-11-29, turned TV off after iteration 0), and the layout
+    // stays what it is.
+    cfg.iters = 1_000_000;
+    cfg.adapt_every = 0.0;
     cfg.sh_every = 0.0;
     cfg.ss_from = 0.0;
     cfg.dist_from = 0.0;
@@ -570,6 +576,8 @@ fn bench_train(
     }
     t.flush()?;
     t.take_stage_times().into_iter().for_each(&mut collect);
+    // Whether TV (a windowed term) was on through the timed iterations.
+    let tv_on = cfg.lambda_tv > 0.0 && t.iter() <= cfg.schedule().tv_until;
     // The same iterations without timestamps: the wall time per iteration is the
     // throughput, and the queue traffic what a steady iteration costs the host.
     t.set_timing(false)?;
@@ -628,6 +636,7 @@ fn bench_train(
             "timed_iterations": total.len(),
             "warmup_ms": warmup_ms,
             "warmup_iters": warmup_iters,
+            "tv_on": tv_on,
             "warmup_wall_ms": warmup_wall_ms,
             "stages_median_ms": med.iter().map(|(k, v)| (k.to_string(), *v)).collect::<BTreeMap<_, _>>(),
             "parts_median_ms": part_order.iter().map(|k| (k.clone(), median(&parts[k]))).collect::<BTreeMap<_, _>>(),

@@ -41,7 +41,8 @@ pub struct SortArgs {
     /// that the device is busy when the timed sort starts (default: 200 on GPUs, 0 on
     /// CPU devices). Every run is verified on the host, and a GPU idles meanwhile: on
     /// the H200 its clocks fell, and the same kernels timed 5× slower in some
-    /// processes than in others, histogram and passes alike.
+    /// processes than in others, histogram and passes alike. As many sorts as the
+    /// fastest run so far fills it with, at most 256 (a small sort gets less).
     #[arg(long)]
     heat_ms: Option<f64>,
     /// Polls of an unpublished look-back word before the pass recounts that tile itself
@@ -53,7 +54,7 @@ pub struct SortArgs {
     #[arg(long)]
     hist_groups: Option<u32>,
     /// Look-back status words each digit of a coalesced pass (c128, c256) reads at
-    /// once, 1 to 8 (default the device's: 1 on CPUs, 4 on GPUs).
+    /// once, 1 to 8 (default the device's: 1 on CPUs, 8 on GPUs).
     #[arg(long)]
     window: Option<u32>,
     /// ALU rounds a coalesced pass spends between two polls of an unpublished
@@ -145,8 +146,8 @@ struct SortReport {
     runs: u32,
     /// Milliseconds of untimed sorts run back to back before each run (`--heat-ms`).
     heat_ms: f64,
-    /// Untimed sorts recorded before each timed run (median): heat_ms over the last
-    /// run's GPU time.
+    /// Untimed sorts recorded before each timed run (median): heat_ms over the fastest
+    /// run's GPU time so far, at most MAX_HEAT_SORTS.
     heat_sorts: u32,
     /// GPU time of those untimed sorts before each timed run (median; 0 without heat).
     heat_gpu_ms: f64,
@@ -354,8 +355,11 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     for i in 0..warmup + runs {
         let heat = fastest_ms.map_or(0, |ms| heat_sorts_for(heat_ms, ms));
         let t0 = Instant::now();
+        let mut heat_record_ms = 0.0;
         let which = ctx.submit_and_wait(|cmd| {
+            let r0 = Instant::now();
             record_heat(cmd, heat, &mut heat_ts)?;
+            heat_record_ms = r0.elapsed().as_secs_f64() * 1e3;
             recorder::copy(ctx, cmd, &src_k, &scratch.keys, 0, 0, n as u64 * 8);
             recorder::copy(ctx, cmd, &src_v, &scratch.values, 0, 0, n as u64 * 4);
             recorder::barrier(ctx, cmd);
@@ -371,13 +375,13 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
         })?;
         let st = ts.stages()?;
         let gpu: f64 = st.iter().map(|s| s.1).sum();
-        // Wall time of the timed sort alone: the heat's GPU time taken out.
+        // Wall time of the timed sort alone: the heat's recording and GPU time taken out.
         let heat_gpu: f64 = if heat > 0 {
             heat_ts.stages()?.iter().map(|s| s.1).sum()
         } else {
             0.0
         };
-        let wall = t0.elapsed().as_secs_f64() * 1e3 - heat_gpu;
+        let wall = t0.elapsed().as_secs_f64() * 1e3 - heat_record_ms - heat_gpu;
         fastest_ms = Some(fastest_ms.map_or(gpu, |f: f64| f.min(gpu)));
         let (rk, rv) = scratch.result(which);
         let gk: Vec<u64> = ctx.download(rk, 0, n as usize)?;
@@ -406,7 +410,10 @@ pub(super) fn bench_sort(ctx: &Context, args: &SortArgs) -> anyhow::Result<()> {
     // The floor: the device copies the same pairs (what a pass reads and writes).
     let mut floor_ts = Timestamps::new(ctx, 2)?;
     let mut floor_ms = Vec::new();
-    let heat = heat_sorts_for(heat_ms, median(&gpu_ms));
+    let heat = heat_sorts_for(
+        heat_ms,
+        gpu_ms.iter().copied().fold(f64::INFINITY, f64::min),
+    );
     for i in 0..warmup + runs {
         ctx.submit_and_wait(|cmd| {
             record_heat(cmd, heat, &mut heat_ts)?;
