@@ -88,6 +88,8 @@ pub(super) fn mean_counters(c: &[WorkCounters]) -> WorkCounters {
         contributions: mean(c.iter().map(|x| f(x).contributions), n),
         builds: mean(c.iter().map(|x| f(x).builds), n),
         subgroups: mean(c.iter().map(|x| f(x).subgroups), n),
+        body_runs: mean(c.iter().map(|x| f(x).body_runs), n),
+        lane_max_crossings: mean(c.iter().map(|x| f(x).lane_max_crossings), n),
     };
     WorkCounters {
         forward: walk(|x| &x.forward),
@@ -104,6 +106,8 @@ pub(super) fn walk_json(w: &WalkCounters) -> serde_json::Value {
         "ray_voxel_crossings": w.crossings,
         "contributions": w.contributions,
         "visit_set_builds": w.builds,
+        "body_runs": w.body_runs,
+        "lane_max_crossings": w.lane_max_crossings,
         "trips_per_useful_trip": w.trips_per_useful(),
         "full_walk_trips_per_useful_trip": if w.useful_trips == 0 { 0.0 } else {
             w.full_walk_trips as f64 / w.useful_trips as f64 },
@@ -131,5 +135,15 @@ pub(super) fn print_work(w: &WorkCounters, subgroup: u32, per: &str) {
             c.crossings,
             c.contributions
         );
+        if c.body_runs > 0 {
+            println!(
+                "    {:<8} compositing body runs {} (a lane's crossing ran it for the subgroup); \
+                 over per-lane lists of crossings: {} ({:.2}×)",
+                "",
+                c.body_runs,
+                c.lane_max_crossings,
+                c.lane_max_crossings as f64 / c.body_runs as f64
+            );
+        }
     }
 }

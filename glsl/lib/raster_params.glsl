@@ -75,10 +75,15 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Fr
 // one lane's pixel needs the entry (rectangle and sign); trips the full walk (every
 // subgroup × every staged entry) would have made; (pixel, entry) pairs past the
 // rectangle and sign test; ray–voxel crossings; contributions (α ≥ MIN_ALPHA);
-// visit-set builds (one per subgroup and staged batch); subgroups dispatched.
+// visit-set builds (one per subgroup and staged batch); subgroups dispatched; (forward
+// only) pixel steps whose crossing branch ran for the subgroup (a lane's pixel crossed
+// the entry's voxel: `px_step`'s body) and, per staged batch, the subgroup's largest
+// crossing count of one lane (what a walk over each lane's own list of crossings would
+// run instead: docs/NVIDIA.md, "Where a GPU frame goes next").
 const uint CTR_TRIPS = 0u, CTR_USEFUL = 1u, CTR_DENSE = 2u, CTR_PAIRS = 3u, CTR_CROSS = 4u,
-           CTR_CONTRIB = 5u, CTR_BUILD = 6u, CTR_SUBGROUPS = 7u, CTR_FWD = 0u, CTR_BWD = 8u,
-           CTR_WORDS = 16u;
+           CTR_CONTRIB = 5u, CTR_BUILD = 6u, CTR_SUBGROUPS = 7u, CTR_BODY = 8u,
+           CTR_LANE_MAX = 9u, CTR_WALK_WORDS = 10u, CTR_FWD = 0u, CTR_BWD = 10u,
+           CTR_WORDS = 20u;
 
 // Words of the stats buffer.
 const uint STAT_TOTAL = 0u;      // u64: entries requested by preprocess

@@ -163,10 +163,11 @@ uint visit_word(FrameParams P, uint first, uint cut) {
 
 #ifdef COUNTERS
 // Adds one subgroup's work counters to the walk's words at `base` (CTR_FWD or CTR_BWD),
-// in uniform control flow. Trips, useful trips, full-walk trips and builds are uniform
-// (added once); pairs, crossings and contributions are per lane (summed).
+// in uniform control flow. Trips, useful trips, full-walk trips, builds, body runs and
+// lane maxima are uniform (added once); pairs, crossings and contributions are per lane
+// (summed).
 void flush_counters(U64s ctr, uint base, uint trips, uint useful, uint dense, uint pairs,
-                    uint cross, uint contrib, uint build) {
+                    uint cross, uint contrib, uint build, uint body, uint lane_max) {
     pairs = subgroupAdd(pairs);
     cross = subgroupAdd(cross);
     contrib = subgroupAdd(contrib);
@@ -179,6 +180,8 @@ void flush_counters(U64s ctr, uint base, uint trips, uint useful, uint dense, ui
         atomicAdd(ctr.v[base + CTR_CONTRIB], uint64_t(contrib));
         atomicAdd(ctr.v[base + CTR_BUILD], uint64_t(build));
         atomicAdd(ctr.v[base + CTR_SUBGROUPS], 1ul);
+        atomicAdd(ctr.v[base + CTR_BODY], uint64_t(body));
+        atomicAdd(ctr.v[base + CTR_LANE_MAX], uint64_t(lane_max));
     }
 }
 #endif

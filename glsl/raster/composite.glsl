@@ -279,7 +279,7 @@ void main() {
 #ifdef COUNTERS
     // Per invocation (a dispatch stays far below 2^32 of each).
     uint c_trips = 0u, c_useful = 0u, c_dense = 0u, c_pairs = 0u, c_cross = 0u, c_contrib = 0u,
-         c_build = 0u;
+         c_build = 0u, c_body = 0u, c_lane_max = 0u;
 #endif
     uint sg = gl_SubgroupID;
     if (l < 2u) s_live[l] = 0u;
@@ -307,6 +307,7 @@ void main() {
         // subgroup here), every staged entry, while any pixel of the tile was live.
         c_dense += WALK_PPL * cnt;
         if (sg_live) c_build += 1u;
+        uint c_lane_batch = 0u; // this lane's crossings (both pixels) in this batch
 #endif
 
         for (uint w = 0u; w < WALK_WORDS; ++w) {
@@ -327,16 +328,21 @@ void main() {
                 c_pairs += uint(need0) + uint(need1);
                 c_cross += uint(w0 >= 1u) + uint(w1 >= 1u);
                 c_contrib += uint(w0 == 2u) + uint(w1 == 2u);
+                c_body += uint(subgroupAny(w0 >= 1u)) + uint(subgroupAny(w1 >= 1u));
+                c_lane_batch += uint(w0 >= 1u) + uint(w1 >= 1u);
 #endif
             }
             // A subgroup whose pixels are all done stops walking (uniform).
             if (subgroupAll(s0.done && s1.done)) break;
         }
+#ifdef COUNTERS
+        c_lane_max += subgroupMax(c_lane_batch);
+#endif
     }
 #ifdef COUNTERS
     U64s ctr = P.counters;  // a writable copy of the address (the block is readonly)
     flush_counters(ctr, CTR_FWD, c_trips, c_useful, c_dense, c_pairs, c_cross, c_contrib,
-                   c_build);
+                   c_build, c_body, c_lane_max);
 #endif
     if (pc.mode == SEG_OFF) {
         px_store(P, s0);

@@ -441,7 +441,7 @@ void main() {
 #ifdef COUNTERS
     U64s ctr = P.counters;  // a writable copy of the address (the block is readonly)
     flush_counters(ctr, CTR_BWD, c_trips, c_useful, c_dense, c_pairs, c_cross, c_contrib,
-                   c_build);
+                   c_build, 0u, 0u); // body runs and lane maxima: the forward's only
 #endif
     if (pc.mode == SEG_OFF) {
         bpx_store(P, B, s0);

@@ -26,6 +26,15 @@ pub struct WalkCounters {
     pub builds: u64,
     /// Subgroups dispatched (all chunks).
     pub subgroups: u64,
+    /// (Forward only; 0 in the backward.) Pixel steps whose crossing branch ran for the
+    /// whole subgroup because at least one lane's pixel crossed the entry's voxel: with
+    /// two pixels per lane, up to two per trip. What the compositing body costs.
+    pub body_runs: u64,
+    /// (Forward only.) Per staged batch, the largest number of crossings one lane made
+    /// (both its pixels), summed: the body runs a walk would need that first lists each
+    /// lane's crossings and then composites them lane by lane (SVRaster's forward). At
+    /// most `body_runs`; at least `crossings` / lanes.
+    pub lane_max_crossings: u64,
 }
 
 impl WalkCounters {
@@ -39,6 +48,8 @@ impl WalkCounters {
             contributions: w[5],
             builds: w[6],
             subgroups: w[7],
+            body_runs: w[8],
+            lane_max_crossings: w[9],
         }
     }
 

@@ -381,9 +381,14 @@ impl Renderer {
             return Ok(None);
         };
         let w: Vec<u64> = self.ctx.download(b, 0, COUNTER_WORDS)?;
+        let (f, b, n) = (
+            crate::gpu::glsl::CTR_FWD as usize,
+            crate::gpu::glsl::CTR_BWD as usize,
+            crate::gpu::glsl::CTR_WALK_WORDS as usize,
+        );
         Ok(Some(WorkCounters {
-            forward: WalkCounters::from_words(&w[0..8]),
-            backward: WalkCounters::from_words(&w[8..16]),
+            forward: WalkCounters::from_words(&w[f..f + n]),
+            backward: WalkCounters::from_words(&w[b..b + n]),
         }))
     }
 

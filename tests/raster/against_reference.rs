@@ -504,6 +504,19 @@ fn sparse_tiles_walk_only_what_their_pixels_need() {
             "the walk should skip most (subgroup, entry) pairs: {c:?}"
         );
         assert!(c.pairs >= c.crossings && c.crossings >= c.contributions);
+        // The compositing body runs for the subgroup when any lane's pixel crosses the
+        // voxel (at most twice a useful trip: two pixels per lane); a walk over each
+        // lane's own crossings would run it at most that often, and at least the
+        // crossings spread over the lanes.
+        let lanes = u64::from(ctx.info().subgroup_size);
+        assert!(
+            c.body_runs <= 2 * c.useful_trips && c.body_runs > 0,
+            "body runs: {c:?}"
+        );
+        assert!(
+            c.lane_max_crossings <= c.body_runs && c.crossings <= lanes * c.lane_max_crossings,
+            "lane maxima: {c:?}"
+        );
         // Every ray-voxel crossing of the reference is composited or tested (rays that
         // stopped early walk fewer): crossings within 1 % of the reference's hits.
         let rel = (c.crossings as f64 - hits as f64).abs() / hits as f64;
