@@ -372,22 +372,27 @@ fn train_interrupt_resume_eval_and_bench() {
     }
 
     // bench train
-    let (ok, out, err) = svraster(&[
-        "bench",
-        "train",
-        ds,
-        "--preset",
-        "quick",
-        "--set",
-        "grid_level=3",
-        "--iters",
-        "3",
-        "--warmup",
-        "1",
-        "--json",
-    ]);
-    assert!(ok, "bench train failed: {out}\n{err}");
-    let v: serde_json::Value = serde_json::from_str(out.trim()).expect("bench JSON");
+    let bench_train = |extra: &[&str]| {
+        let mut a = vec![
+            "bench",
+            "train",
+            ds,
+            "--preset",
+            "quick",
+            "--set",
+            "grid_level=3",
+            "--iters",
+            "3",
+            "--warmup",
+            "1",
+            "--json",
+        ];
+        a.extend(extra);
+        let (ok, out, err) = svraster(&a);
+        assert!(ok, "bench train {extra:?} failed: {out}\n{err}");
+        serde_json::from_str::<serde_json::Value>(out.trim()).expect("bench JSON")
+    };
+    let v = bench_train(&[]);
     assert!(v["median_ms_per_iter"].as_f64().unwrap() > 0.0);
     // Every timed (queued) iteration's stage times were read, once.
     assert_eq!(v["timed_iterations"], 3, "{v}");
@@ -397,24 +402,7 @@ fn train_interrupt_resume_eval_and_bench() {
     } else {
         assert!(v["warmup_wall_ms"].as_f64().unwrap() >= v["warmup_ms"].as_f64().unwrap());
     }
-    let (ok, out, err) = svraster(&[
-        "bench",
-        "train",
-        ds,
-        "--preset",
-        "quick",
-        "--set",
-        "grid_level=3",
-        "--iters",
-        "3",
-        "--warmup",
-        "1",
-        "--warmup-ms",
-        "400",
-        "--json",
-    ]);
-    assert!(ok, "bench train --warmup-ms: {err}");
-    let w: serde_json::Value = serde_json::from_str(out.trim()).expect("bench JSON");
+    let w = bench_train(&["--warmup-ms", "400"]);
     assert_eq!(w["warmup_ms"], 400.0, "{w}");
     assert!(w["warmup_wall_ms"].as_f64().unwrap() >= 400.0, "{w}");
     let (ok, _, err) = svraster(&["bench", "train", ds, "--warmup-ms", "70000"]);
