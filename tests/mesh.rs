@@ -646,9 +646,17 @@ fn meshes_read_from_binary_and_ascii_ply_alike() {
     assert_eq!(pb, m.positions);
     assert_eq!((pa, ta.clone()), (pb, tb));
     assert_eq!(ta, m.triangles);
+    // Counts and indices from the file: a face list of 1e308 entries panicked while
+    // sizing its allocation, -1 was read as vertex 0.
+    let four = "0 0 0 7\n1 0 0 7\n1 1 0.5 7\n0 1 -0.25 7\n";
     for (body, needle) in [
         ("0 0 0 7\n1 0 0 7\n", "ends inside"),
         ("0 0 zero 7\n", "`zero` is not a number"),
+        (&format!("{four}1e308 0 1 2\n") as &str, "is not a count"),
+        (&format!("{four}-3 0 1 2\n"), "is not a count"),
+        (&format!("{four}3 0 -1 2\n"), "`-1` is not a vertex index"),
+        (&format!("{four}3 0 1.5 2\n"), "`1.5` is not a vertex index"),
+        (&format!("{four}9 0 1 2\n"), "ends inside"),
     ] {
         let bad = dir.path().join("bad.ply");
         let text = std::fs::read_to_string(&ascii).unwrap();
@@ -657,4 +665,38 @@ fn meshes_read_from_binary_and_ascii_ply_alike() {
         let e = ply::read(&bad).unwrap_err().to_string();
         assert!(e.contains("bad.ply") && e.contains(needle), "{e}");
     }
+}
+
+/// Mesh sampling is bounded before it allocates: a vertex at 3.4e38, one at infinity or a
+/// spacing of 0 allocated until the process aborted; the error names the threshold to
+/// raise. The demo's analytic surface is bounded the same way.
+#[test]
+fn mesh_sampling_refuses_counts_it_cannot_hold() {
+    use svraster::mesh::metrics::sample_mesh;
+    let tri = [[0u32, 1, 2]];
+    let unit = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let n = sample_mesh(&unit, &tri, 0.01).unwrap().len();
+    assert!(
+        (4990..=5000).contains(&n),
+        "{n} samples on half a unit square"
+    );
+    for (p, spacing) in [
+        ([3.4e38, 0.0, 0.0], 0.01),
+        ([f64::INFINITY, 0.0, 0.0], 0.01),
+        ([f64::NAN, 0.0, 0.0], 0.01),
+        ([1.0, 0.0, 0.0], 0.0),
+        ([1.0, 0.0, 0.0], 1e-5),
+    ] {
+        let v = [[0.0, 0.0, 0.0], p, [0.0, 1.0, 0.0]];
+        let e = sample_mesh(&v, &tri, spacing).unwrap_err().to_string();
+        assert!(e.contains("--threshold"), "{p:?} at {spacing}: {e}");
+    }
+    let eyes = [[3.0, 0.0, 1.0]];
+    assert!(!svraster::data::demo::surface_samples(&eyes, 0.05)
+        .unwrap()
+        .is_empty());
+    let e = svraster::data::demo::surface_samples(&eyes, 1e-6)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("--threshold"), "{e}");
 }

@@ -18,12 +18,29 @@ pub enum ExportFormat {
 }
 
 pub fn run(model: &Path, format: ExportFormat, out: &Path, json: bool) -> anyhow::Result<()> {
-    refuse_output_over_model(model, out)?;
+    let model_file = super::inputs::model_path(model)?;
+    let (what, extensions): (&str, &[&str]) = match format {
+        ExportFormat::Ply => ("the voxel point cloud", &["ply"]),
+        ExportFormat::Splat => ("the 3D Gaussian Splatting PLY", &["ply"]),
+        ExportFormat::Quantized => ("the quantized model", &["safetensors"]),
+    };
+    super::outputs::check_file(
+        out,
+        &super::outputs::OutputFile {
+            flag: "--out",
+            what,
+            extensions,
+            inputs: &[("the model", &model_file)],
+        },
+    )?;
     let scene = super::inputs::load_model(model)?;
+    // Counted here, not read back: a pipe or /dev/null has no size.
+    let written;
     let (name, line) = match format {
         ExportFormat::Ply => {
             let bytes = voxel_ply(&scene);
             svraster::fsio::write_atomic(out, &bytes)?;
+            written = bytes.len();
             (
                 "ply",
                 format!(
@@ -38,6 +55,7 @@ pub fn run(model: &Path, format: ExportFormat, out: &Path, json: bool) -> anyhow
         ExportFormat::Splat => {
             let bytes = gaussian_ply(&scene);
             svraster::fsio::write_atomic(out, &bytes)?;
+            written = bytes.len();
             (
                 "splat",
                 format!(
@@ -51,8 +69,10 @@ pub fn run(model: &Path, format: ExportFormat, out: &Path, json: bool) -> anyhow
         }
         ExportFormat::Quantized => {
             let full = checkpoint::to_bytes(&scene)?.len();
-            checkpoint::save_quantized(&scene, out)?;
-            let q = std::fs::metadata(out)?.len() as usize;
+            let bytes = checkpoint::to_bytes_quantized(&scene)?;
+            svraster::fsio::write_atomic(out, &bytes)?;
+            let q = bytes.len();
+            written = q;
             (
                 "quantized",
                 format!(
@@ -70,7 +90,7 @@ pub fn run(model: &Path, format: ExportFormat, out: &Path, json: bool) -> anyhow
         let doc = serde_json::json!({
             "out": out,
             "format": name,
-            "bytes": std::fs::metadata(out)?.len(),
+            "bytes": written,
             "voxels": scene.num_voxels(),
         });
         println!("{}", serde_json::to_string_pretty(&doc)?);
@@ -157,30 +177,6 @@ pub fn gaussian_ply(scene: &Scene) -> Vec<u8> {
 
 /// The binary little-endian PLY of the voxels: `float x y z` (centre, world), `float
 /// size` (edge, world), `uchar level`, `float density` (the activated density at the
-/// The export must not replace the model it reads, nor the checkpoint pair of its run
-/// (`export RUN --out RUN/model.safetensors` replaced the trained model).
-fn refuse_output_over_model(model: &Path, out: &Path) -> anyhow::Result<()> {
-    use super::inputs::resolved;
-    let model_file = resolved(&super::inputs::model_path(model)?);
-    let o = resolved(out);
-    let run_dir = model_file
-        .parent()
-        .map(Path::to_path_buf)
-        .unwrap_or_default();
-    let checkpoint = ["model.safetensors", "optimizer.safetensors"]
-        .iter()
-        .any(|n| o == run_dir.join(n));
-    if o == model_file || checkpoint {
-        anyhow::bail!(
-            "--out {} would replace the model being exported ({}) or its run's checkpoint; \
-             choose another file",
-            out.display(),
-            model_file.display()
-        );
-    }
-    Ok(())
-}
-
 /// centre, `explin` of the mean corner value, per model unit length), `uchar red green
 /// blue` (the degree-0 colour 0.5 + C0·sh0, clamped).
 pub fn voxel_ply(scene: &Scene) -> Vec<u8> {

@@ -12,7 +12,7 @@ use svraster::gpu::Context;
 use svraster::raster::{RenderOptions, Renderer};
 use svraster::scene::{Scene, SceneGpu};
 
-use super::inputs::{load_model, output_names, refuse_output_in_dataset};
+use super::inputs::{load_model, output_names};
 
 pub struct FuseArgs {
     pub model: PathBuf,
@@ -258,13 +258,21 @@ fn field_kind(sources: &[Source], mask: bool) -> anyhow::Result<(FieldKind, u32)
 }
 
 pub fn run_fuse(ctx: &Context, a: FuseArgs) -> anyhow::Result<()> {
+    let model = super::inputs::model_path(&a.model)?;
+    super::outputs::check_file(
+        &a.out,
+        &super::outputs::OutputFile {
+            flag: "--out",
+            what: "the field",
+            extensions: &["safetensors"],
+            inputs: &[
+                ("the model", &model),
+                ("the dataset", &a.data),
+                ("the labels or features", &a.from),
+            ],
+        },
+    )?;
     let scene = load_model(&a.model)?;
-    if a.out.is_dir() {
-        bail!(
-            "--out {} is a folder; name the field file, e.g. FIELD.safetensors",
-            a.out.display()
-        );
-    }
     let mut ds = data::load(&a.data, &a.split, a.downscale, scene.background, &a.source)?;
     ds.to_model(&scene.world);
     if ds.frames.is_empty() {
@@ -386,12 +394,11 @@ pub fn render_fields(
     data_dir: &Path,
     a: &FieldRenderArgs,
 ) -> anyhow::Result<(String, serde_json::Value)> {
+    super::outputs::check_dir(out, &[("the dataset", data_dir)])?;
     let f = Field::load(a.field)?;
     f.check_model(scene)
         .with_context(|| format!("--field {}", a.field.display()))?;
-    refuse_output_in_dataset(out, data_dir)?;
-    std::fs::create_dir_all(out)
-        .with_context(|| format!("cannot create output directory {}", out.display()))?;
+    let made = super::outputs::create_dir(out)?;
     let pca = match f.kind {
         FieldKind::Features => {
             if a.truth.is_some() {
@@ -511,5 +518,6 @@ pub fn render_fields(
             path.display()
         );
     }
+    made.keep();
     Ok((line, summary))
 }

@@ -64,15 +64,15 @@ pub fn run(
     if !(1.0..=4.0).contains(&ss) {
         bail!("--ss {ss}: the supersampling must be 1 to 4 (SVRaster's default is 1.5)");
     }
-    if out.extension().and_then(|e| e.to_str()) != Some("safetensors") {
-        bail!(
-            "--out {}: the model is written as .safetensors; name it *.safetensors",
-            out.display()
-        );
-    }
-    if super::inputs::resolved(out) == super::inputs::resolved(ckpt) {
-        bail!("--out {} is the checkpoint being imported", out.display());
-    }
+    super::outputs::check_file(
+        out,
+        &super::outputs::OutputFile {
+            flag: "--out",
+            what: "the model",
+            extensions: &["safetensors"],
+            inputs: &[("the checkpoint", ckpt)],
+        },
+    )?;
     let scene = import_svraster(
         ckpt,
         &SvrasterImport {

@@ -1,5 +1,6 @@
-//! What several commands read and guard: the model argument (a checkpoint or a run
-//! directory), output names per frame, and the refusal to write into a dataset.
+//! What several commands read: the model argument (a checkpoint or a run directory),
+//! output names per frame, and paths made comparable (the output guard is
+//! [`super::outputs`]).
 
 use std::path::{Path, PathBuf};
 
@@ -90,20 +91,4 @@ pub fn resolved(path: &Path) -> PathBuf {
             _ => return path.to_path_buf(),
         }
     }
-}
-
-/// Renders are written as STEM.png per frame: inside the dataset they can replace its
-/// photos (`--out DATA/test` did), so the dataset's folder and everything in it are
-/// refused as the output.
-pub fn refuse_output_in_dataset(out: &Path, data: &Path) -> anyhow::Result<()> {
-    let (o, d) = (resolved(out), resolved(data));
-    if o.starts_with(&d) {
-        bail!(
-            "--out {} is inside the dataset {}: the renders (one STEM.png per frame) could \
-             replace its photos. Write them to a folder outside the dataset",
-            out.display(),
-            data.display()
-        );
-    }
-    Ok(())
 }

@@ -11,6 +11,7 @@ mod import;
 mod info;
 mod inputs;
 mod mesh;
+mod outputs;
 mod paths;
 mod plot;
 mod progress;

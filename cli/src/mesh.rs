@@ -35,7 +35,7 @@ pub struct MeshArgs {
 
 pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
     let t0 = Instant::now();
-    check_output(&a.out)?;
+    check_output(&a)?;
     let scene = super::inputs::load_model(&a.model)?;
     let mut ds = data::load(&a.data, &a.split, a.downscale, scene.background, &a.source)?;
     ds.to_model(&scene.world);
@@ -144,10 +144,6 @@ pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
         colors,
         triangles: ex.mesh.triangles.clone(),
     };
-    if let Some(dir) = a.out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir)
-            .with_context(|| format!("cannot create the directory of {}", a.out.display()))?;
-    }
     if is_glb(&a.out) {
         mesh::glb::write(&a.out, &out)?;
     } else {
@@ -237,15 +233,31 @@ pub struct EvalMeshArgs {
 }
 
 /// The mesh's output is checked before the work (fusion and extraction take minutes on
-/// a real capture): not a folder, and its folder can be made and written to.
-fn check_output(out: &std::path::Path) -> anyhow::Result<()> {
-    if out.is_dir() {
-        bail!(
-            "--out {} is a folder; give the mesh's file name, e.g. mesh.ply",
-            out.display()
-        );
-    }
-    let dir = out
+/// a real capture): the shared output rule (a .ply or .glb file, not the model, not in
+/// the dataset, not a run's own file; a pipe or device is written in place), and a file's
+/// folder can be made and written to.
+fn check_output(a: &MeshArgs) -> anyhow::Result<()> {
+    let out = &a.out;
+    let model = super::inputs::model_path(&a.model)?;
+    let target = super::outputs::check_file(
+        out,
+        &super::outputs::OutputFile {
+            flag: "--out",
+            what: "the mesh",
+            extensions: &["ply", "glb"],
+            inputs: &[("the model", &model), ("the dataset", &a.data)],
+        },
+    )?;
+    let svraster::fsio::OutputTarget::File(file) = target else {
+        if a.preview > 0 {
+            bail!(
+                "--preview writes OUT_NAME.png beside --out {}, which is not a file; name a                  mesh file, or leave out --preview",
+                out.display()
+            );
+        }
+        return Ok(());
+    };
+    let dir = file
         .parent()
         .filter(|d| !d.as_os_str().is_empty())
         .unwrap_or(std::path::Path::new("."));
@@ -273,6 +285,11 @@ pub fn run_eval_mesh(a: EvalMeshArgs) -> anyhow::Result<()> {
             "--demo and --truth are two ground truths (the demo scene's analytic surface, \
              a point cloud): give one"
         );
+    }
+    for (flag, v) in [("--threshold", a.threshold), ("--max-dist", a.max_dist)] {
+        if let Some(v) = v.filter(|v| !(v.is_finite() && *v > 0.0)) {
+            bail!("{flag} {v}: a distance, greater than 0");
+        }
     }
     let (positions, triangles) = ply::read(&a.mesh)?;
     if triangles.is_empty() {
@@ -335,7 +352,7 @@ pub fn run_eval_mesh(a: EvalMeshArgs) -> anyhow::Result<()> {
     let truth = if a.demo {
         let threshold = a.threshold.unwrap_or(0.02);
         Some((
-            data::demo::surface_samples(&eyes, threshold / 5.0),
+            data::demo::surface_samples(&eyes, threshold / 5.0)?,
             threshold,
             a.max_dist.unwrap_or(5.0 * threshold),
             "the demo's analytic surface seen by the split's cameras".to_string(),
@@ -370,7 +387,19 @@ pub fn run_eval_mesh(a: EvalMeshArgs) -> anyhow::Result<()> {
         );
     }
     if let Some((truth, threshold, max_dist, what)) = truth {
-        let samples = metrics::sample_mesh(&positions, &triangles, threshold / 5.0);
+        if !(threshold.is_finite() && threshold > 0.0 && max_dist.is_finite() && max_dist > 0.0) {
+            bail!(
+                "the F-score threshold ({threshold:e}) and the distance clamp ({max_dist:e}) \
+                 must be positive: {}; pass --threshold and --max-dist",
+                if a.threshold.is_none() && a.truth.is_some() {
+                    "the truth's bounding box has no extent (a single point?)"
+                } else {
+                    "as given"
+                }
+            );
+        }
+        let samples = metrics::sample_mesh(&positions, &triangles, threshold / 5.0)
+            .with_context(|| format!("{}", a.mesh.display()))?;
         let e = metrics::surface_errors(&samples, &truth, threshold, max_dist);
         lines.push(format!(
             "against {what}: accuracy {:.4e}, completeness {:.4e}, Chamfer {:.4e} (distances \

@@ -268,8 +268,10 @@ pub fn nerfstudio_size(path: &Path) -> Option<(u32, u32)> {
 }
 
 /// Encodes `dir/frame_%05d.png` into an H.264 MP4 at `out` with the system's ffmpeg.
+/// ffmpeg writes into `dir`; the video is then written to `out` as every output is
+/// ([`svraster::fsio::write_atomic_with`]: a symlink followed, a pipe written in place).
 pub fn encode_mp4(dir: &Path, out: &Path, fps: u32) -> anyhow::Result<()> {
-    let tmp = svraster::fsio::tmp_path(out);
+    let tmp = dir.join(".encoded.mp4.tmp");
     let status = std::process::Command::new("ffmpeg")
         .args([
             "-y",
@@ -306,8 +308,13 @@ pub fn encode_mp4(dir: &Path, out: &Path, fps: u32) -> anyhow::Result<()> {
             let _ = std::fs::remove_file(&tmp);
             bail!("ffmpeg failed ({s}); the frames are in {}", dir.display())
         }
-        Ok(_) => std::fs::rename(&tmp, out)
-            .with_context(|| format!("cannot move {} to {}", tmp.display(), out.display())),
+        Ok(_) => {
+            let copied = svraster::fsio::write_atomic_with(out, |w| {
+                std::io::copy(&mut std::fs::File::open(&tmp)?, w).map(|_| ())
+            });
+            let _ = std::fs::remove_file(&tmp);
+            Ok(copied?)
+        }
     }
 }
 

@@ -6,7 +6,8 @@ use std::time::Instant;
 
 use anyhow::{bail, Context as _};
 
-use super::inputs::{load_model, output_names, refuse_output_in_dataset};
+use super::inputs::{load_model, output_names};
+use super::outputs;
 use svraster::data::{self, image, Camera};
 use svraster::gpu::Context;
 use svraster::raster::{Image, RenderOptions, Renderer};
@@ -174,14 +175,14 @@ pub struct RenderArgs {
 /// frames).
 pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64, usize)> {
     let scene = load_model(&a.model)?;
+    // The output before the work (the dataset's photos, the renders).
+    outputs::check_dir(&a.out, &[("the dataset", &a.data)])?;
     let mut ds = data::load(&a.data, &a.split, a.downscale, scene.background, &a.source)?;
     ds.to_model(&scene.world);
     if ds.frames.is_empty() {
         bail!("split `{}` of {} has no frames", a.split, a.data.display());
     }
-    refuse_output_in_dataset(&a.out, &a.data)?;
-    std::fs::create_dir_all(&a.out)
-        .with_context(|| format!("cannot create output directory {}", a.out.display()))?;
+    let made = outputs::create_dir(&a.out)?;
     let opts = RenderOptions {
         samples: a.samples,
         supersample: a.ss.unwrap_or(scene.supersample),
@@ -226,6 +227,7 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64, 
     })?;
     let ms = t.elapsed().as_secs_f64() * 1e3;
     progress.finish();
+    made.keep();
     let n = ds.frames.len() as f64;
     Ok((total_psnr / n, ms / n, ds.frames.len()))
 }
@@ -235,6 +237,21 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64, 
 fn render_path(ctx: &Context, a: &RenderArgs, kind: &str) -> anyhow::Result<()> {
     use super::paths;
     let scene = load_model(&a.model)?;
+    // The output before the work (the dataset's cameras, the frames).
+    let (dir, mp4) = paths::frames_dir(&a.out);
+    if mp4 {
+        let model = super::inputs::model_path(&a.model)?;
+        outputs::check_file(
+            &a.out,
+            &outputs::OutputFile {
+                flag: "--out",
+                what: "the video",
+                extensions: &["mp4"],
+                inputs: &[("the model", &model), ("the dataset", &a.data)],
+            },
+        )?;
+    }
+    outputs::check_dir(&dir, &[("the dataset", &a.data)])?;
     let mut ds = data::load(&a.data, "train", a.downscale, scene.background, &a.source)?;
     ds.to_model(&scene.world);
     let size = a
@@ -261,10 +278,7 @@ fn render_path(ctx: &Context, a: &RenderArgs, kind: &str) -> anyhow::Result<()> 
         a.fov.map(f64::to_radians),
         &scene.world,
     )?;
-    refuse_output_in_dataset(&a.out, &a.data)?;
-    let (dir, mp4) = paths::frames_dir(&a.out);
-    std::fs::create_dir_all(&dir)
-        .with_context(|| format!("cannot create output directory {}", dir.display()))?;
+    let made = outputs::create_dir(&dir)?;
     let opts = RenderOptions {
         samples: a.samples,
         supersample: a.ss.unwrap_or(scene.supersample),
@@ -285,6 +299,9 @@ fn render_path(ctx: &Context, a: &RenderArgs, kind: &str) -> anyhow::Result<()> 
     })?;
     progress.finish();
     let ms = 1e3 * t.elapsed().as_secs_f64() / cams.len() as f64;
+    // Every frame is written: they stay, also when the encoding fails (its error says
+    // where they are).
+    made.keep();
     if mp4 {
         paths::encode_mp4(&dir, &a.out, 30)?;
     }

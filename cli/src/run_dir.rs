@@ -287,20 +287,46 @@ pub(super) fn load_pair(run: &Path) -> anyhow::Result<(Vec<u8>, u32, Vec<Vec<f32
 }
 
 /// Drops the lines of `run/stats.jsonl` past iteration `iter` (a run that crashed after
-/// its last checkpoint logged iterations the resumed run will log again).
+/// its last checkpoint logged iterations the resumed run will log again): iteration
+/// lines (`iter`), adaptive steps (`adapt.iter`) and held-out scores (`eval.iter`) past
+/// it. Every other line stays as it is; lines that are not JSON are kept and named.
 pub(super) fn truncate_stats(run: &Path, iter: u32) -> anyhow::Result<()> {
     let path = run.join("stats.jsonl");
     let Ok(text) = std::fs::read_to_string(&path) else {
         return Ok(());
     };
+    let mut broken = Vec::new();
     let keep: Vec<&str> = text
         .lines()
-        .filter(|l| {
-            let v: serde_json::Value = serde_json::from_str(l).unwrap_or_default();
-            let at = v["iter"].as_u64().or_else(|| v["adapt"]["iter"].as_u64());
-            at.is_some_and(|i| i <= u64::from(iter))
+        .enumerate()
+        .filter(|(n, l)| {
+            let Ok(v) = serde_json::from_str::<serde_json::Value>(l) else {
+                if !l.trim().is_empty() {
+                    broken.push(n + 1);
+                }
+                return true;
+            };
+            let at = v["iter"]
+                .as_u64()
+                .or_else(|| v["adapt"]["iter"].as_u64())
+                .or_else(|| v["eval"]["iter"].as_u64());
+            at.is_none_or(|i| i <= u64::from(iter))
         })
+        .map(|(_, l)| l)
         .collect();
+    if !broken.is_empty() {
+        eprintln!(
+            "warning: {} has {} line(s) that are not JSON (line {}); kept as they are",
+            path.display(),
+            broken.len(),
+            broken
+                .iter()
+                .take(5)
+                .map(|n| n.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     if keep.len() != text.lines().count() {
         let mut out = keep.join("\n");
         if !out.is_empty() {
@@ -425,5 +451,32 @@ mod tests {
             assert!(e.contains(OPT_FILE) && e.contains(want), "{e}");
         }
         dir.close().unwrap();
+    }
+
+    /// Resuming at iteration 20 drops only what the resumed run logs again: iteration,
+    /// adaptive and held-out lines past 20. The held-out curve up to the checkpoint, lines
+    /// of other shapes and lines that are not JSON stay (eval lines and broken ones were
+    /// dropped).
+    #[test]
+    fn resume_keeps_the_log_up_to_the_checkpoint() {
+        let dir = tempfile::tempdir().unwrap();
+        let lines = [
+            r#"{"iter":10,"loss":1}"#,
+            r#"{"adapt":{"iter":15}}"#,
+            r#"{"eval":{"iter":20,"psnr":30}}"#,
+            r#"{"note":"no iteration"}"#,
+            "not json {",
+            r#"{"iter":30,"loss":1}"#,
+            r#"{"adapt":{"iter":25}}"#,
+            r#"{"eval":{"iter":30,"psnr":31}}"#,
+        ];
+        let path = dir.path().join("stats.jsonl");
+        std::fs::write(&path, lines.join("\n") + "\n").unwrap();
+        truncate_stats(dir.path(), 20).unwrap();
+        let kept = std::fs::read_to_string(&path).unwrap();
+        assert_eq!(kept, lines[..5].join("\n") + "\n");
+        // Nothing past the checkpoint: the file is left as it is.
+        truncate_stats(dir.path(), 20).unwrap();
+        assert_eq!(std::fs::read_to_string(&path).unwrap(), kept);
     }
 }

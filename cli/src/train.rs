@@ -17,7 +17,7 @@ use super::progress::Progress;
 use super::run_dir::{atomic_write, load_pair, lock_run, truncate_stats};
 
 pub use super::train_loop::RunSummary;
-use super::train_loop::{train_loop, HeldOut, LongRun};
+use super::train_loop::{train_loop, ConfigUpdate, HeldOut, LongRun};
 
 pub struct TrainArgs {
     pub data: PathBuf,
@@ -155,11 +155,16 @@ pub(super) fn canonical(p: &Path) -> PathBuf {
 
 /// `svraster train`.
 pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
+    if a.eval_every == Some(0) {
+        bail!("--eval-every must be at least 1");
+    }
     let run = &a.out;
     let cfg_path = run.join("config.json");
     let mut lock = None;
     let mut extended = false;
     let mut moved: Option<(PathBuf, Option<String>)> = None;
+    // A resumed run's changed config.json, written with its first checkpoint.
+    let mut config_update: Option<serde_json::Value> = None;
     let (mut cfg, init, opt_state, start_iter, preset, downscale, source) = if a.resume {
         if a.seed.is_some() || !a.set.is_empty() || a.config.is_some() {
             bail!("--resume continues a run with its own config.json: drop --seed/--set/--config (or start a new --out)");
@@ -312,7 +317,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
                 let mut v: serde_json::Value = serde_json::from_str(&text)
                     .with_context(|| format!("{} is not valid JSON", cfg_path.display()))?;
                 v["data"] = serde_json::json!(canonical(&a.data));
-                atomic_write(&cfg_path, serde_json::to_string_pretty(&v)?.as_bytes())?;
+                config_update = Some(v);
             }
             Some(_) => bail!(
                 "--resume: the run in {} trains on {}, not {}: its training views (names, \
@@ -331,9 +336,17 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
             ),
         }
     }
-    if lock.is_none() {
+    let made = if lock.is_none() {
         // A new run: everything is validated; now the directory, locked before anything
         // is written into it (and checked again under the lock).
+        if run.exists() && !run.is_dir() {
+            bail!(
+                "--out {}: it is a file; the run goes into a directory (config.json, \
+                 stats.jsonl, model.safetensors …): choose another --out",
+                run.display()
+            );
+        }
+        let made = super::outputs::missing_root(run);
         std::fs::create_dir_all(run)
             .with_context(|| format!("cannot create run directory {}", run.display()))?;
         lock = Some(lock_run(run)?);
@@ -343,7 +356,18 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
                 run.display()
             );
         }
-    }
+        made
+    } else {
+        None
+    };
+    let mut fresh = FreshRun(made.map(|root| FreshDirs {
+        ids: [
+            super::outputs::identity(&root),
+            super::outputs::identity(run),
+        ],
+        run: run.clone(),
+        root,
+    }));
     let mut train = train;
     if init.is_none() {
         let region = svraster::train::bounds::resolve_run(&mut cfg, &mut train)?;
@@ -415,14 +439,20 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         let _ = std::fs::remove_file(run.join("stats.jsonl"));
         let _ = std::fs::remove_file(run.join("training.png"));
     } else if extended {
-        // An extension: config.json records the new end and the schedule's length.
-        let text = std::fs::read_to_string(&cfg_path)
-            .with_context(|| format!("cannot read {}", cfg_path.display()))?;
-        let mut v: serde_json::Value = serde_json::from_str(&text)
-            .with_context(|| format!("{} is not valid JSON", cfg_path.display()))?;
+        // An extension: config.json records the new end and the schedule's length (with
+        // the first checkpoint of the extension, [`ConfigUpdate`]).
+        let mut v = match config_update.take() {
+            Some(v) => v,
+            None => {
+                let text = std::fs::read_to_string(&cfg_path)
+                    .with_context(|| format!("cannot read {}", cfg_path.display()))?;
+                serde_json::from_str(&text)
+                    .with_context(|| format!("{} is not valid JSON", cfg_path.display()))?
+            }
+        };
         v["config"] = serde_json::to_value(&cfg)?;
         v["schedule"] = serde_json::to_value(trainer.schedule())?;
-        atomic_write(&cfg_path, serde_json::to_string_pretty(&v)?.as_bytes())?;
+        config_update = Some(v);
         eprintln!(
             "extending the run to {} iterations: its milestones stay where its {}-iteration \
              schedule put them; the rest trains at the schedule's final state",
@@ -455,7 +485,7 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         warned: false,
     });
     let held = match a.eval_every {
-        Some(0) => bail!("--eval-every must be at least 1"),
+        Some(0) => unreachable!("refused at the start"),
         Some(every) => {
             let split = super::default_split(&a.data);
             let mut ds = data::load(&a.data, &split, downscale, cfg.background, &source)?;
@@ -479,8 +509,49 @@ pub fn run_train(ctx: &Context, a: &TrainArgs) -> anyhow::Result<RunSummary> {
         None => None,
     };
     let lock = lock.expect("the run directory is locked above");
-    let summary = train_loop(&mut trainer, run, &lock, long_run, held.as_ref())?;
+    let config_update = match config_update {
+        Some(v) => Some(ConfigUpdate {
+            path: cfg_path.clone(),
+            bytes: serde_json::to_string_pretty(&v)?.into_bytes(),
+        }),
+        None => None,
+    };
+    let summary = train_loop(
+        &mut trainer,
+        run,
+        &lock,
+        long_run,
+        held.as_ref(),
+        config_update,
+    )?;
+    fresh.0 = None;
     Ok(summary)
+}
+
+/// The directory of a new run that this process made and locked (with the first folder
+/// of its path it made): removed again if the run fails before its first checkpoint, so
+/// a failed start leaves nothing behind (it left a folder holding only `.lock`). Once a
+/// checkpoint exists it always stays: a run is never lost; nor is a folder put in its
+/// place while it ran removed (its identity is kept).
+struct FreshRun(Option<FreshDirs>);
+
+/// The run directory, the first folder of its path this process made, and the
+/// identities of both when made.
+struct FreshDirs {
+    run: PathBuf,
+    root: PathBuf,
+    ids: [Option<(u64, u64)>; 2],
+}
+
+impl Drop for FreshRun {
+    fn drop(&mut self) {
+        if let Some(f) = self.0.take() {
+            let same = super::outputs::identity(&f.run) == f.ids[1];
+            if same && !has_checkpoint(&f.run) {
+                super::outputs::remove_if_same(&f.root, f.ids[0]);
+            }
+        }
+    }
 }
 
 /// Which views of which dataset, read how.

@@ -128,12 +128,35 @@ impl LongRun {
     }
 }
 
+/// A resumed run's new config.json (an extension's iterations, a moved dataset's path),
+/// written with the first checkpoint the resumed run saves: a resume that fails before
+/// one leaves the run's files as they were.
+pub(super) struct ConfigUpdate {
+    pub path: std::path::PathBuf,
+    pub bytes: Vec<u8>,
+}
+
+/// Saves the checkpoint pair, then a pending config.json.
+fn save(
+    run: &Path,
+    lock: &RunLock,
+    trainer: &mut Trainer,
+    config_update: &mut Option<ConfigUpdate>,
+) -> anyhow::Result<()> {
+    save_run(run, lock, trainer)?;
+    if let Some(u) = config_update.take() {
+        super::run_dir::atomic_write(&u.path, &u.bytes)?;
+    }
+    Ok(())
+}
+
 pub(super) fn train_loop(
     trainer: &mut Trainer,
     run: &Path,
     lock: &RunLock,
     mut long_run: Option<LongRun>,
     held: Option<&HeldOut>,
+    mut config_update: Option<ConfigUpdate>,
 ) -> anyhow::Result<RunSummary> {
     catch_signals()?;
     INTERRUPTS.store(0, Ordering::SeqCst);
@@ -162,7 +185,7 @@ pub(super) fn train_loop(
     while trainer.iter() < cfg.iters {
         if INTERRUPTS.load(Ordering::SeqCst) > 0 {
             progress.finish();
-            save_run(run, lock, trainer)?;
+            save(run, lock, trainer, &mut config_update)?;
             curves(run);
             eprintln!(
                 "interrupted: saved iteration {} to {}; continue with --resume",
@@ -239,7 +262,7 @@ pub(super) fn train_loop(
         }
         if sched.checkpoints.contains(&info.iter) {
             trainer.check_finite()?;
-            save_run(run, lock, trainer)?;
+            save(run, lock, trainer, &mut config_update)?;
             curves(run);
         }
         let done = info.iter == cfg.iters;
@@ -267,7 +290,7 @@ pub(super) fn train_loop(
     }
     progress.finish();
     trainer.check_finite()?;
-    save_run(run, lock, trainer)?;
+    save(run, lock, trainer, &mut config_update)?;
     curves(run);
     let secs = t0.elapsed().as_secs_f64();
     let layout = if cfg.outside_level > 0 {

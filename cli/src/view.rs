@@ -109,17 +109,17 @@ pub fn run(a: ViewArgs, validation: bool) -> anyhow::Result<()> {
         bail!("--json summarises a --screenshot run; add --screenshot OUT.png");
     }
     if let Some(p) = &a.screenshot {
-        if p.extension()
-            .and_then(|e| e.to_str())
-            .map(str::to_lowercase)
-            != Some("png".into())
-        {
-            bail!(
-                "--screenshot {}: the screenshot is a PNG; name it *.png",
-                p.display()
-            );
-        }
-        if let Some(dir) = p.parent().filter(|d| !d.as_os_str().is_empty()) {
+        let model = super::inputs::model_path(&a.model)?;
+        let target = super::outputs::check_file(
+            p,
+            &super::outputs::OutputFile {
+                flag: "--screenshot",
+                what: "the screenshot",
+                extensions: &["png"],
+                inputs: &[("the model", &model)],
+            },
+        )?;
+        if let Some(dir) = target.path().parent().filter(|d| !d.as_os_str().is_empty()) {
             if !dir.is_dir() {
                 bail!(
                     "--screenshot {}: folder {} not found",

@@ -49,6 +49,26 @@ pub fn save_gray16_png(path: &Path, width: u32, height: u32, gray: &[u16]) -> Re
     save_png(path, width, height, &bytes, ExtendedColorType::L16)
 }
 
+/// The most pixels an image read as input may have: 2^28 (a 16 384² photo; 4 GiB as the
+/// f32 RGBA pixels it is read into).
+pub const MAX_INPUT_PIXELS: u64 = 1 << 28;
+
+/// Refuses an image whose header announces more than [`MAX_INPUT_PIXELS`] pixels or an
+/// edge over [`crate::raster::MAX_IMAGE_EDGE`], before anything is decoded: the size comes
+/// from the file (a PNG whose IHDR said 2^31 − 1 rows aborted the process).
+pub(crate) fn check_decoded_size(path: &Path, w: u32, h: u32) -> Result<()> {
+    let edge = crate::raster::MAX_IMAGE_EDGE;
+    if u64::from(w) * u64::from(h) > MAX_INPUT_PIXELS || w > edge || h > edge {
+        return Err(Error::Invalid(format!(
+            "{}: the header says {w}×{h} pixels, more than the {MAX_INPUT_PIXELS} pixels \
+             ({edge} per edge) an input image may have: the file is corrupt, or downscale it \
+             first",
+            path.display()
+        )));
+    }
+    Ok(())
+}
+
 /// Reads a PNG or JPEG (told apart by content) as `(width, height, rgba)`: row-major,
 /// values in `[0, 1]`, turned upright by the file's EXIF orientation when it has one.
 /// Gray images are replicated to RGB; alpha is 1 where the file has none. The error names
@@ -79,6 +99,8 @@ pub fn load_rgba(path: &Path) -> Result<(u32, u32, Vec<[f32; 4]>)> {
         other => return Err(bad(format!("format {other:?} is not supported"))),
     }
     let mut decoder = reader.into_decoder().map_err(|e| bad(e.to_string()))?;
+    let (w, h) = decoder.dimensions();
+    check_decoded_size(path, w, h)?;
     let orientation = decoder.orientation().map_err(|e| bad(e.to_string()))?;
     let mut img = image::DynamicImage::from_decoder(decoder).map_err(|e| bad(e.to_string()))?;
     img.apply_orientation(orientation);

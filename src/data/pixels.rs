@@ -14,6 +14,12 @@ pub fn load_labels(path: &Path) -> Result<(u32, u32, Vec<u8>)> {
         path: path.display().to_string(),
         error,
     })?;
+    let dims =
+        image::ImageReader::with_format(std::io::Cursor::new(&bytes), image::ImageFormat::Png)
+            .into_dimensions();
+    if let Ok((w, h)) = dims {
+        super::image::check_decoded_size(path, w, h)?;
+    }
     let img =
         image::load_from_memory_with_format(&bytes, image::ImageFormat::Png).map_err(|e| {
             bad(format!(

@@ -98,7 +98,11 @@ pub fn read_points(path: &Path) -> Result<Vec<[f64; 3]>> {
             .ok_or_else(|| bad(format!("the vertex element has no `{axis}` property")))
     };
     let xyz = [idx("x")?, idx("y")?, idx("z")?];
-    let mut points = Vec::with_capacity(n);
+    // The count comes from the file: the allocation is bounded by what the body can hold
+    // (an ASCII vertex takes at least two bytes per property), and a count the body
+    // cannot hold is the truncation error below, never an allocation of its size.
+    let fits = body.len() / (2 * props.len()).max(1) + 1;
+    let mut points = Vec::with_capacity(n.min(fits));
     if format == "ascii" {
         let text = std::str::from_utf8(body).map_err(|_| bad("ASCII body is not text".into()))?;
         for (k, line) in text.lines().take(n).enumerate() {
@@ -122,12 +126,15 @@ pub fn read_points(path: &Path) -> Result<Vec<[f64; 3]>> {
             .collect::<Result<_>>()?;
         let stride: usize = sizes.iter().sum();
         let offset = |i: usize| sizes[..i].iter().sum::<usize>();
-        if body.len() < n * stride {
-            return Err(bad(format!(
-                "truncated: {n} vertices of {stride} bytes need {} bytes, the body has {}",
-                n * stride,
-                body.len()
-            )));
+        match n.checked_mul(stride) {
+            Some(need) if need <= body.len() => {}
+            need => {
+                return Err(bad(format!(
+                    "truncated: {n} vertices of {stride} bytes need {} bytes, the body has {}",
+                    need.map_or("more than 2^64".into(), |b| b.to_string()),
+                    body.len()
+                )))
+            }
         }
         let read = |rec: &[u8], i: usize| -> f64 {
             let b = &rec[offset(i)..offset(i) + sizes[i]];

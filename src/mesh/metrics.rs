@@ -28,16 +28,37 @@ pub struct SurfaceErrors {
     pub truth_points: usize,
 }
 
+/// The most points [`sample_mesh`] takes (24 bytes each: 384 MiB).
+pub const MAX_MESH_SAMPLES: f64 = (1u64 << 24) as f64;
+
 /// About one point per `spacing²` of area on the triangles, uniform by area (fixed
 /// seed; at least one per triangle of area ≥ `spacing²`, none on degenerate ones).
-pub fn sample_mesh(positions: &[[f64; 3]], triangles: &[[u32; 3]], spacing: f64) -> Vec<[f64; 3]> {
+/// Refused, before any allocation, when that is more than [`MAX_MESH_SAMPLES`] points or
+/// not a number (a vertex at 3.4e38 or ∞, a spacing of 0).
+pub fn sample_mesh(
+    positions: &[[f64; 3]],
+    triangles: &[[u32; 3]],
+    spacing: f64,
+) -> crate::error::Result<Vec<[f64; 3]>> {
     use rand::{Rng, SeedableRng};
+    let corners = |t: &[u32; 3]| t.map(|i| glam::DVec3::from(positions[i as usize]));
+    let area_of = |[a, b, c]: [glam::DVec3; 3]| 0.5 * (b - a).cross(c - a).length();
+    let area: f64 = triangles.iter().map(|t| area_of(corners(t))).sum();
+    let wanted = area / (spacing * spacing);
+    if !(spacing > 0.0 && wanted.is_finite() && wanted <= MAX_MESH_SAMPLES) {
+        return Err(crate::error::Error::Invalid(format!(
+            "sampling the mesh (area {area:.4e}) every {spacing:.4e} takes {wanted:.4e} \
+             points, more than the {MAX_MESH_SAMPLES} allowed: give a larger --threshold \
+             (samples are threshold/5 apart), or check the mesh for vertices far out or not \
+             finite"
+        )));
+    }
     let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
     let mut out = Vec::new();
     let mut carry = 0.0f64;
     for t in triangles {
-        let [a, b, c] = t.map(|i| glam::DVec3::from(positions[i as usize]));
-        let area = 0.5 * (b - a).cross(c - a).length();
+        let [a, b, c] = corners(t);
+        let area = area_of([a, b, c]);
         // Expected count area/spacing², with the fractional part carried over so small
         // triangles still add up.
         carry += area / (spacing * spacing);
@@ -51,7 +72,7 @@ pub fn sample_mesh(positions: &[[f64; 3]], triangles: &[[u32; 3]], spacing: f64)
             out.push((a + (b - a) * u + (c - a) * v).to_array());
         }
     }
-    out
+    Ok(out)
 }
 
 struct Grid {

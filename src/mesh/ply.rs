@@ -156,15 +156,38 @@ pub fn read(path: &Path) -> Result<PositionsAndTriangles> {
     };
     let (mut xyz, mut tris) = (Vec::new(), Vec::new());
     for (name, count, props) in &elements {
+        if name == "vertex" {
+            for axis in ["x", "y", "z"] {
+                if !props.iter().any(|p| p.0 == axis && p.2.is_none()) {
+                    return Err(bad(format!("the vertex element has no `{axis}` property")));
+                }
+            }
+        }
+        if props.is_empty() {
+            // Holds no data: nothing to read (a huge count would loop for nothing).
+            continue;
+        }
         for _ in 0..*count {
             let mut p = [0.0f64; 3];
             for (pname, t, list) in props {
                 if let Some(ct) = list {
-                    let n = next(ct)? as usize;
-                    let mut idx = Vec::with_capacity(n);
-                    for _ in 0..n {
-                        idx.push(next(t)? as u32);
+                    // Counts and indices come from the file: whole numbers in range, or
+                    // an error (an ASCII count of 1e308 sized an allocation; -1 read
+                    // as vertex 0). The list grows as its entries are read, so a count
+                    // past the data ends as "truncated".
+                    let c = next(ct)?;
+                    if !(c >= 0.0 && c.fract() == 0.0 && c < f64::from(u32::MAX)) {
+                        return Err(bad(format!("{name}: list length `{c}` is not a count")));
                     }
+                    let mut idx = Vec::new();
+                    for _ in 0..c as usize {
+                        let i = next(t)?;
+                        if !(i >= 0.0 && i.fract() == 0.0 && i <= f64::from(u32::MAX)) {
+                            return Err(bad(format!("{name}: `{i}` is not a vertex index")));
+                        }
+                        idx.push(i as u32);
+                    }
+                    let n = idx.len();
                     if name == "face" {
                         for k in 1..n.saturating_sub(1) {
                             tris.push([idx[0], idx[k], idx[k + 1]]);

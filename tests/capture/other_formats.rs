@@ -147,6 +147,22 @@ fn ply_points() {
             svraster::data::ply::read_points(&path).is_err(),
             "{fmt} truncated"
         );
+        // A header count the body cannot hold is an error naming the file, never an
+        // allocation of that size (2^31 aborted, u64::MAX panicked "capacity overflow").
+        for n in ["2147483648", "18446744073709551615"] {
+            let mut bytes = head(fmt, t)
+                .replace("vertex 2", &format!("vertex {n}"))
+                .into_bytes();
+            bytes.extend_from_slice(&b[head(fmt, t).len()..]);
+            std::fs::write(&path, &bytes).unwrap();
+            let e = svraster::data::ply::read_points(&path)
+                .unwrap_err()
+                .to_string();
+            assert!(
+                e.contains(&format!("{fmt}.ply")) && e.contains("truncated"),
+                "{fmt}, {n} vertices: {e}"
+            );
+        }
     }
     let Some(garden) = shared("mip360_garden_512") else {
         return;

@@ -75,3 +75,56 @@ fn truncated_capture_photo_is_an_error() {
         "{e}"
     );
 }
+
+/// A PNG whose IHDR announces 2^31 − 1 rows (the file itself 4×4 pixels) is refused,
+/// naming the file, before anything is decoded: as a photo or mask ([`load_rgba`]) and as
+/// a label image of `fuse`. The decoder sized its buffer from the header and the process
+/// aborted.
+#[test]
+fn png_header_sizes_are_checked_before_decoding() {
+    use image::ImageEncoder;
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut c = !0u32;
+        for &b in bytes {
+            c ^= u32::from(b);
+            for _ in 0..8 {
+                c = if c & 1 == 1 {
+                    0xEDB8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
+    }
+    let dir = temp_dir("png-size");
+    let mut png = Vec::new();
+    image::codecs::png::PngEncoder::new(&mut png)
+        .write_image(&[128u8; 16], 4, 4, image::ExtendedColorType::L8)
+        .unwrap();
+    let ok = dir.path().join("small.png");
+    std::fs::write(&ok, &png).unwrap();
+    assert_eq!(load_rgba(&ok).unwrap().1, 4);
+    // IHDR: length (4 bytes) at 8, "IHDR" at 12, width at 16, height at 20, CRC at 29.
+    assert_eq!(&png[12..16], b"IHDR");
+    for (w, h) in [(4u32, (1u32 << 31) - 1), (70_000, 4), (20_000, 20_000)] {
+        let mut big = png.clone();
+        big[16..20].copy_from_slice(&w.to_be_bytes());
+        big[20..24].copy_from_slice(&h.to_be_bytes());
+        let crc = crc32(&big[12..29]);
+        big[29..33].copy_from_slice(&crc.to_be_bytes());
+        let p = dir.path().join("huge.png");
+        std::fs::write(&p, &big).unwrap();
+        for e in [
+            load_rgba(&p).unwrap_err().to_string(),
+            svraster::data::pixels::load_labels(&p)
+                .unwrap_err()
+                .to_string(),
+        ] {
+            assert!(
+                e.contains("huge.png") && e.contains(&format!("{w}×{h}")),
+                "{w}×{h}: {e}"
+            );
+        }
+    }
+}

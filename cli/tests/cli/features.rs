@@ -165,8 +165,8 @@ fn json_summaries() {
         m["triangles"].as_u64().unwrap() > 100 && m["level"].as_u64().is_some(),
         "{m}"
     );
-    for format in ["ply", "quantized"] {
-        let out = dir.path().join(format!("e.{format}"));
+    for (format, ext) in [("ply", "ply"), ("quantized", "safetensors")] {
+        let out = dir.path().join(format!("e.{ext}"));
         let e = json(&[
             "export",
             rs,

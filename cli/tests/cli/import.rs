@@ -117,7 +117,11 @@ fn svraster_checkpoints_render_as_the_model_they_hold() {
             vec!["import", missing.to_str().unwrap(), "--out", ms],
             "not found",
         ),
-        (vec!["import", p, "--out", p], "name it *.safetensors"),
+        (vec!["import", p, "--out", p], "would replace an input"),
+        (
+            vec!["import", p, "--out", "m.bin"],
+            "name the file NAME.safetensors",
+        ),
         (
             vec!["import", p, "--out", ms, "--background", "red"],
             "expected white, black, frame-mean or R,G,B",

@@ -193,5 +193,6 @@ mod export_bench;
 mod features;
 mod field;
 mod import;
+mod outputs;
 mod resume_signals;
 mod view;

@@ -238,7 +238,7 @@ fn view_refuses_bad_arguments_before_opening_a_window() {
             "--camera 99: the train split has 6 cameras",
         ),
         (&[m, "--camera", "0"], "no dataset: pass --data"),
-        (&[m, "--screenshot", "out.jpg"], "is a PNG"),
+        (&[m, "--screenshot", "out.jpg"], "is written as .png"),
         (&[m, "--json"], "--json summarises a --screenshot run"),
         (&[m, "--samples", "4"], "--samples must be 1, 2 or 3"),
     ];

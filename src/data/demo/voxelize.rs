@@ -153,9 +153,11 @@ pub fn voxelize(max_level: u32, sh_degree: u32) -> Result<Scene> {
 /// Points on the demo scene's visible surface, about `spacing` apart: samples on every
 /// primitive's surface (uniform by area, fixed seed) that lie on the union's boundary
 /// (inside no other primitive) and that a camera at one of `eyes` sees (its ray to the
-/// point hits nothing before it). The ground truth of mesh accuracy tests.
-pub fn surface_samples(eyes: &[[f64; 3]], spacing: f64) -> Vec<[f64; 3]> {
+/// point hits nothing before it). The ground truth of mesh accuracy tests. A spacing
+/// that asks for more than [`crate::mesh::metrics::MAX_MESH_SAMPLES`] samples is refused.
+pub fn surface_samples(eyes: &[[f64; 3]], spacing: f64) -> crate::error::Result<Vec<[f64; 3]>> {
     use rand::{Rng, SeedableRng};
+    let max = crate::mesh::metrics::MAX_MESH_SAMPLES;
     let mut rng = rand_pcg::Pcg64::seed_from_u64(17);
     let mut out = Vec::new();
     for (pi, prim) in PRIMITIVES.iter().enumerate() {
@@ -195,8 +197,14 @@ pub fn surface_samples(eyes: &[[f64; 3]], spacing: f64) -> Vec<[f64; 3]> {
                 )
             }
         };
-        let n = (area / (spacing * spacing)).ceil() as usize;
-        for _ in 0..n {
+        let wanted = (area / (spacing * spacing)).ceil();
+        if !(spacing > 0.0 && wanted <= max) {
+            return Err(crate::error::Error::Invalid(format!(
+                "the demo's surface sampled every {spacing:.3e} takes more than {max} points: \
+                 give a larger --threshold (samples are threshold/5 apart)"
+            )));
+        }
+        for _ in 0..wanted as usize {
             let p = sample(&mut rng);
             let inside_other = PRIMITIVES
                 .iter()
@@ -219,5 +227,5 @@ pub fn surface_samples(eyes: &[[f64; 3]], spacing: f64) -> Vec<[f64; 3]> {
             }
         }
     }
-    out
+    Ok(out)
 }
