@@ -277,6 +277,7 @@ fn render_path(ctx: &Context, a: &RenderArgs, kind: &str) -> anyhow::Result<()> 
         size,
         a.fov.map(f64::to_radians),
         &scene.world,
+        Some(scene.center.map(f64::from)),
     )?;
     let made = outputs::create_dir(&dir)?;
     let opts = RenderOptions {
