@@ -145,7 +145,11 @@ pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
         triangles: ex.mesh.triangles.clone(),
     };
     if is_glb(&a.out) {
-        mesh::glb::write(&a.out, &out)?;
+        let format = a
+            .source
+            .format
+            .unwrap_or_else(|| data::detect_format(&a.data));
+        mesh::glb::write(&a.out, &out, world_up(format, &ds.frames))?;
     } else {
         ply::write(&a.out, &out)?;
     }
@@ -210,6 +214,21 @@ pub fn run_mesh(ctx: &Context, a: MeshArgs) -> anyhow::Result<()> {
         r.mc_seconds
     );
     Ok(())
+}
+
+/// The world's up for a Y-up file: +Z for Blender-format data (Blender's world, the
+/// demo's), else the training cameras' mean up (a capture's world has no fixed axes;
+/// COLMAP's is arbitrary), +Z when they cancel out.
+fn world_up(format: data::Format, frames: &[data::Frame]) -> [f64; 3] {
+    if format == data::Format::Blender {
+        return [0.0, 0.0, 1.0];
+    }
+    // The model frame is the world's shifted and scaled: directions are the same.
+    let s: glam::DVec3 = frames
+        .iter()
+        .map(|f| -glam::DVec3::from(f.camera.rotate([0.0, 1.0, 0.0])))
+        .sum();
+    s.try_normalize().map_or([0.0, 0.0, 1.0], |u| u.to_array())
 }
 
 /// Whether `out` names a glTF binary (`.glb`, any case); anything else is written as PLY.

@@ -18,8 +18,30 @@ const FLOAT: u32 = 5126;
 const UNSIGNED_BYTE: u32 = 5121;
 const UNSIGNED_INT: u32 = 5125;
 
-/// The bytes of `m` as a `.glb` file (positions and normals as f32, colours as RGBA8).
-pub fn encode(m: &PlyMesh) -> Result<Vec<u8>> {
+/// The rotation (glTF's `[x, y, z, w]` quaternion) that turns `up` into +Y, glTF's up:
+/// the shortest arc (a half turn about X when `up` is −Y); None when `up` is +Y already
+/// or not a direction.
+pub fn y_up_rotation(up: [f64; 3]) -> Option<[f64; 4]> {
+    let u = glam::DVec3::from(up).try_normalize()?;
+    let y = glam::DVec3::Y;
+    let c = u.dot(y);
+    if c > 1.0 - 1e-12 {
+        return None;
+    }
+    if c < -1.0 + 1e-12 {
+        return Some([1.0, 0.0, 0.0, 0.0]);
+    }
+    // q = (u × y, 1 + u·y), normalised: the rotation by the angle between them.
+    let a = u.cross(y);
+    let q = glam::DVec4::new(a.x, a.y, a.z, 1.0 + c).normalize();
+    Some(q.to_array())
+}
+
+/// The bytes of `m` as a `.glb` file (positions and normals as f32, colours as RGBA8),
+/// positions as they are (world coordinates) under a root node that turns the world's
+/// `up` into glTF's +Y ([`y_up_rotation`]), so Y-up viewers (three.js, Blender's importer,
+/// game engines) show the scene upright.
+pub fn encode(m: &PlyMesh, up: [f64; 3]) -> Result<Vec<u8>> {
     let n = m.positions.len();
     if m.normals.len() != n || !(m.colors.is_empty() || m.colors.len() == n) {
         return Err(Error::Invalid(format!(
@@ -103,11 +125,15 @@ pub fn encode(m: &PlyMesh) -> Result<Vec<u8>> {
         "bufferView": idx_view, "componentType": UNSIGNED_INT,
         "count": 3 * m.triangles.len(), "type": "SCALAR",
     }));
+    let mut node = serde_json::json!({ "mesh": 0 });
+    if let Some(q) = y_up_rotation(up) {
+        node["rotation"] = serde_json::json!(q);
+    }
     let doc = serde_json::json!({
         "asset": { "version": "2.0", "generator": "svraster-vk" },
         "scene": 0,
         "scenes": [{ "nodes": [0] }],
-        "nodes": [{ "mesh": 0 }],
+        "nodes": [node],
         "meshes": [{ "primitives": [{
             "attributes": attributes, "indices": accessors.len() - 1, "mode": 4,
         }]}],
@@ -134,7 +160,31 @@ pub fn encode(m: &PlyMesh) -> Result<Vec<u8>> {
     Ok(out)
 }
 
-/// Writes `m` to `path` as `.glb`, atomically.
-pub fn write(path: &Path, m: &PlyMesh) -> Result<()> {
-    crate::fsio::write_atomic(path, &encode(m)?)
+/// Writes `m` to `path` as `.glb` ([`encode`]), atomically.
+pub fn write(path: &Path, m: &PlyMesh, up: [f64; 3]) -> Result<()> {
+    crate::fsio::write_atomic(path, &encode(m, up)?)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The root rotation turns each up into +Y (and leaves +Y alone).
+    #[test]
+    fn rotations_turn_up_into_y() {
+        for up in [
+            [0.0, 0.0, 1.0],
+            [0.0, 0.0, -2.0],
+            [1.0, 0.0, 0.0],
+            [0.3, -0.5, 0.8],
+            [0.0, -1.0, 0.0],
+        ] {
+            let q = y_up_rotation(up).unwrap();
+            let q = glam::DQuat::from_xyzw(q[0], q[1], q[2], q[3]);
+            let v = q * glam::DVec3::from(up).normalize();
+            assert!((v - glam::DVec3::Y).length() < 1e-12, "{up:?} -> {v}");
+        }
+        assert_eq!(y_up_rotation([0.0, 3.0, 0.0]), None);
+        assert_eq!(y_up_rotation([0.0; 3]), None);
+    }
 }

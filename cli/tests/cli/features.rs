@@ -520,6 +520,17 @@ fn mesh_as_gltf_binary_reads_back() {
         colors.iter().any(|c| c[..3] != [0, 0, 0]),
         "vertex colours carried"
     );
+    // Y-up (glTF's axes): the scene's root node turns the demo's up, world +Z, into +Y;
+    // the positions under it stay the world's. It stood on its side in three.js.
+    let scene = doc.default_scene().expect("a default scene");
+    let roots: Vec<_> = scene.nodes().collect();
+    assert_eq!(roots.len(), 1);
+    let m = roots[0].transform().matrix();
+    let up = [m[2][0], m[2][1], m[2][2]]; // the image of +Z (column-major)
+    assert!(
+        (up[0].abs() + (up[1] - 1.0).abs() + up[2].abs()) < 1e-6,
+        "+Z maps to {up:?}"
+    );
 }
 
 /// `render --path`: an orbit and a fly-through of the training cameras as numbered PNGs
