@@ -265,6 +265,13 @@ fn nerfstudio_path(path: &Path, world: &WorldFrame, w: u32, h: u32) -> anyhow::R
     })?;
     let v: serde_json::Value = serde_json::from_str(&text)
         .with_context(|| format!("{} is not valid JSON", path.display()))?;
+    if let Some(t) = v["camera_type"].as_str().filter(|t| *t != "perspective") {
+        bail!(
+            "{}: camera_type `{t}`: only perspective camera paths are rendered (export the \
+             path with a perspective camera)",
+            path.display()
+        );
+    }
     let frames = v["camera_path"]
         .as_array()
         .with_context(|| format!("{}: no `camera_path` array", path.display()))?;
@@ -288,6 +295,22 @@ fn nerfstudio_path(path: &Path, world: &WorldFrame, w: u32, h: u32) -> anyhow::R
             bail!(bad("`fov` is not in (0, 180) degrees"));
         }
         let gl: [[f64; 4]; 4] = std::array::from_fn(|r| std::array::from_fn(|c| m[4 * r + c]));
+        // A pose: a rotation (orthonormal, determinant 1) and a translation. An all-zero
+        // or scaled, sheared or mirrored matrix rendered blank or distorted frames.
+        let r = DMat3::from_cols_array_2d(&std::array::from_fn(|c| {
+            std::array::from_fn(|row| gl[row][c])
+        }));
+        let off = (r.transpose() * r - DMat3::IDENTITY).to_cols_array();
+        if off.iter().any(|x| x.abs() > 1e-3) || (r.determinant() - 1.0).abs() > 1e-3 {
+            bail!(bad(&format!(
+                "`camera_to_world` is not a rigid pose (its 3×3 part has determinant {:.3} \
+                 and is not a rotation): write rotation and translation only",
+                r.determinant()
+            )));
+        }
+        if gl[3] != [0.0, 0.0, 0.0, 1.0] {
+            bail!(bad("`camera_to_world`'s last row is not 0 0 0 1"));
+        }
         let fov_x = 2.0 * ((0.5 * fov_y.to_radians()).tan() * w as f64 / h as f64).atan();
         let cam = Camera::from_opengl(gl, fov_x, w, h);
         out.push(world.camera_to_model(&cam));

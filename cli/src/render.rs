@@ -236,6 +236,10 @@ pub fn render_split(ctx: &Context, a: &RenderArgs) -> anyhow::Result<(f64, f64, 
 /// encoded to an MP4 (the PNGs kept beside it in `OUT.frames/`).
 fn render_path(ctx: &Context, a: &RenderArgs, kind: &str) -> anyhow::Result<()> {
     use super::paths;
+    if let Some(f) = a.fov.filter(|f| !(*f > 0.0 && *f < 180.0)) {
+        // 180 rendered white frames; 0, NaN and negatives failed inside the renderer.
+        bail!("--fov {f}: the horizontal field of view, degrees between 0 and 180 (exclusive)");
+    }
     let scene = load_model(&a.model)?;
     // The output before the work (the dataset's cameras, the frames).
     let (dir, mp4) = paths::frames_dir(&a.out);

@@ -76,6 +76,14 @@ fn config_file(path: &Path) -> anyhow::Result<(TrainConfig, Option<String>)> {
         Some(c) => (c.clone(), v["preset"].as_str().map(String::from)),
         None => (v, None),
     };
+    if !obj.is_object() {
+        // serde would map an array onto the fields by position (`[3]` set the seed).
+        bail!(
+            "--config {}: not a training configuration: expected a JSON object (a run's \
+             config.json, or its \"config\" object)",
+            path.display()
+        );
+    }
     let mut cfg: TrainConfig = serde_json::from_value(obj).with_context(|| {
         format!(
             "--config {}: not a training configuration (a run's config.json, or its \

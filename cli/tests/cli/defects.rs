@@ -568,3 +568,87 @@ fn resume_follows_a_moved_dataset() {
     let (ok, _, err) = svraster(&["eval", rs]);
     assert!(ok, "{err}");
 }
+
+/// Inputs that rendered nonsense with exit 0 or failed inside the renderer are refused
+/// with one line naming the input: a camera_path.json pose that is not rigid (a mirrored
+/// scale, an all-zero matrix), a fisheye or equirectangular path, `--fov` 0, NaN,
+/// negative, 180 or more, and a `--config` that is a JSON array (mapped onto the fields
+/// by position: `[3]` set the seed).
+#[test]
+fn bad_camera_paths_fov_and_config_are_refused() {
+    let dir = tmp("bad-paths");
+    let data = small_data(dir.path(), "data", 4);
+    let run = dir.path().join("run");
+    let rs = run.to_str().unwrap();
+    let (ok, _, err) = train_quick(data.to_str().unwrap(), rs, "5", &[]);
+    assert!(ok, "{err}");
+    let good = svraster::data::demo::orbit_pose(0.0, 0.3).concat();
+    let mirrored: Vec<f64> = good
+        .iter()
+        .enumerate()
+        .map(|(i, v)| if i % 4 == 0 && i < 12 { -0.62 * v } else { *v })
+        .collect();
+    let out = dir.path().join("frames");
+    let path = dir.path().join("camera_path.json");
+    for (m, kind, want) in [
+        (mirrored, "perspective", "not a rigid pose"),
+        (vec![0.0; 16], "perspective", "not a rigid pose"),
+        (good.clone(), "fisheye", "camera_type `fisheye`"),
+        (
+            good.clone(),
+            "equirectangular",
+            "camera_type `equirectangular`",
+        ),
+    ] {
+        let doc = serde_json::json!({
+            "camera_type": kind, "render_width": 16, "render_height": 12,
+            "camera_path": [{ "camera_to_world": m, "fov": 40.0 }],
+        });
+        std::fs::write(&path, doc.to_string()).unwrap();
+        let (ok, _, err) = svraster(&[
+            "render",
+            rs,
+            "--path",
+            path.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(!ok, "{kind} {m:?} accepted");
+        let line = err.lines().find(|l| l.starts_with("error:")).unwrap_or("");
+        assert!(
+            line.contains(want) && line.contains("camera_path.json"),
+            "{err}"
+        );
+    }
+    for fov in ["0", "nan", "-10", "180", "200"] {
+        let flag = format!("--fov={fov}");
+        let (ok, _, err) = svraster(&[
+            "render",
+            rs,
+            "--path",
+            "orbit",
+            "--frames",
+            "2",
+            &flag,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(!ok, "--fov {fov} accepted");
+        assert!(
+            err.contains(&format!("--fov {fov}")) || err.contains("--fov NaN"),
+            "{err}"
+        );
+    }
+    assert!(!out.exists(), "a refused path render made its folder");
+    let cfg = dir.path().join("array.json");
+    std::fs::write(&cfg, "[3]").unwrap();
+    let (ok, _, err) = svraster(&[
+        "train",
+        data.to_str().unwrap(),
+        "--out",
+        dir.path().join("r2").to_str().unwrap(),
+        "--config",
+        cfg.to_str().unwrap(),
+    ]);
+    assert!(!ok && err.contains("expected a JSON object"), "{err}");
+}
