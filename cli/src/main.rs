@@ -635,9 +635,10 @@ pub fn run() -> anyhow::Result<()> {
             source,
         } => {
             let data = data_or_run(data, &model)?;
+            // Where the run writes it: config.json's `config` (the top level has none).
             let main_region = run_config(&model).and_then(|v| {
-                let c: [f64; 3] = serde_json::from_value(v["center"].clone()).ok()?;
-                let e = v["extent"].as_f64()?;
+                let c: [f64; 3] = serde_json::from_value(v["config"]["center"].clone()).ok()?;
+                let e = v["config"]["extent"].as_f64()?;
                 Some((c, e))
             });
             mesh::run_mesh(
