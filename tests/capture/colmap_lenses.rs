@@ -38,6 +38,17 @@ fn colmap_bad_models_are_named() {
         std::fs::write(dir.path().join(file), &long).unwrap();
         expect_err(dir.path(), &[file, "trailing"]);
     }
+    // A point that is not at a finite position, binary and text: named with its file.
+    for (k, v) in [(0, f64::NAN), (1, f64::INFINITY), (2, f64::NEG_INFINITY)] {
+        let mut bad = rec.clone();
+        bad.points[3].xyz[k] = v;
+        let id = bad.points[3].id.to_string();
+        colmap::write_bin(dir.path(), &bad).unwrap();
+        expect_err(dir.path(), &["points3D.bin", &id, "not a finite position"]);
+        let t = tmp("badpt");
+        colmap::write_txt(t.path(), &bad).unwrap();
+        expect_err(t.path(), &["points3D.txt", &id, "not a finite position"]);
+    }
     // An absurd count.
     colmap::write_bin(dir.path(), &rec).unwrap();
     let mut b = std::fs::read(dir.path().join("images.bin")).unwrap();

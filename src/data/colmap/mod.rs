@@ -159,6 +159,18 @@ pub fn read_model(dir: &Path) -> Result<Reconstruction> {
     } else {
         parse_points_txt(&text(&read(&pts)?, &pts)?, &pts)?
     };
+    // COLMAP writes finite positions: NaN was dropped without a word further on, +Inf
+    // refused without naming the file.
+    if let Some(p) = points.iter().find(|p| p.xyz.iter().any(|v| !v.is_finite())) {
+        return Err(invalid(
+            &pts,
+            format!(
+                "point {} is at {:?}, not a finite position: the model is damaged; export \
+                 it from COLMAP again (or remove the point)",
+                p.id, p.xyz
+            ),
+        ));
+    }
     for img in images.values() {
         if !cameras.contains_key(&img.camera_id) {
             return Err(invalid(
