@@ -289,7 +289,8 @@ pub(super) fn load_pair(run: &Path) -> anyhow::Result<(Vec<u8>, u32, Vec<Vec<f32
 /// Drops the lines of `run/stats.jsonl` past iteration `iter` (a run that crashed after
 /// its last checkpoint logged iterations the resumed run will log again): iteration
 /// lines (`iter`), adaptive steps (`adapt.iter`) and held-out scores (`eval.iter`) past
-/// it. Every other line stays as it is; lines that are not JSON are kept and named.
+/// it. Lines of other shapes stay. Lines that are not JSON (a write torn by a crash) are
+/// dropped, and a warning says how many and where.
 pub(super) fn truncate_stats(run: &Path, iter: u32) -> anyhow::Result<()> {
     let path = run.join("stats.jsonl");
     let Ok(text) = std::fs::read_to_string(&path) else {
@@ -304,7 +305,7 @@ pub(super) fn truncate_stats(run: &Path, iter: u32) -> anyhow::Result<()> {
                 if !l.trim().is_empty() {
                     broken.push(n + 1);
                 }
-                return true;
+                return false;
             };
             let at = v["iter"]
                 .as_u64()
@@ -316,7 +317,8 @@ pub(super) fn truncate_stats(run: &Path, iter: u32) -> anyhow::Result<()> {
         .collect();
     if !broken.is_empty() {
         eprintln!(
-            "warning: {} has {} line(s) that are not JSON (line {}); kept as they are",
+            "warning: {} has {} line(s) that are not JSON (line {}; a write torn by a \
+             crash?): dropped on resume",
             path.display(),
             broken.len(),
             broken
@@ -453,10 +455,10 @@ mod tests {
         dir.close().unwrap();
     }
 
-    /// Resuming at iteration 20 drops only what the resumed run logs again: iteration,
-    /// adaptive and held-out lines past 20. The held-out curve up to the checkpoint, lines
-    /// of other shapes and lines that are not JSON stay (eval lines and broken ones were
-    /// dropped).
+    /// Resuming at iteration 20 drops what the resumed run logs again: iteration,
+    /// adaptive and held-out lines past 20, and lines that are not JSON (torn writes,
+    /// with a warning). The held-out curve up to the checkpoint and lines of other shapes
+    /// stay (eval lines were dropped).
     #[test]
     fn resume_keeps_the_log_up_to_the_checkpoint() {
         let dir = tempfile::tempdir().unwrap();
@@ -474,7 +476,7 @@ mod tests {
         std::fs::write(&path, lines.join("\n") + "\n").unwrap();
         truncate_stats(dir.path(), 20).unwrap();
         let kept = std::fs::read_to_string(&path).unwrap();
-        assert_eq!(kept, lines[..5].join("\n") + "\n");
+        assert_eq!(kept, lines[..4].join("\n") + "\n");
         // Nothing past the checkpoint: the file is left as it is.
         truncate_stats(dir.path(), 20).unwrap();
         assert_eq!(std::fs::read_to_string(&path).unwrap(), kept);
