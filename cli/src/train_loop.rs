@@ -230,12 +230,14 @@ pub(super) fn train_loop(
                 "it_per_s": (info.iter - first) as f64 / t0.elapsed().as_secs_f64().max(1e-9),
                 "queue": queue_json(trainer, &mut queue_last, info.iter),
             });
-            writeln!(stats, "{line}")
+            stats
+                .write_all(format!("{line}\n").as_bytes())
                 .with_context(|| format!("cannot write {}", stats_path.display()))?;
         }
         if let Some(r) = &info.adapt {
             let line = serde_json::json!({ "adapt": r });
-            writeln!(stats, "{line}")
+            stats
+                .write_all(format!("{line}\n").as_bytes())
                 .with_context(|| format!("cannot write {}", stats_path.display()))?;
             let msg = format!(
                 "adapt @{}: pruned {} (max weight < {}), subdivided {} → {} voxels, {} grid \
@@ -256,7 +258,8 @@ pub(super) fn train_loop(
             held.filter(|h| info.iter.is_multiple_of(h.every) || info.iter == cfg.iters)
         {
             let (line, msg) = h.score(trainer, info.iter)?;
-            writeln!(stats, "{line}")
+            stats
+                .write_all(format!("{line}\n").as_bytes())
                 .with_context(|| format!("cannot write {}", stats_path.display()))?;
             progress.line(&msg);
         }

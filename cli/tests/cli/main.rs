@@ -52,6 +52,25 @@ fn stats_lines(run: &std::path::Path) -> Vec<serde_json::Value> {
         .collect()
 }
 
+/// The complete lines of a run's stats.jsonl while it trains (a line being appended is
+/// left out), parsed.
+fn stats_lines_so_far(run: &std::path::Path) -> Vec<serde_json::Value> {
+    let text = std::fs::read_to_string(run.join("stats.jsonl")).unwrap_or_default();
+    let complete = text.rfind('\n').map_or("", |i| &text[..i]);
+    complete
+        .lines()
+        .map(|l| serde_json::from_str(l).expect("stats line is JSON"))
+        .collect()
+}
+
+/// Iterations logged so far in the stats.jsonl of a run that is training.
+fn logged_so_far(run: &std::path::Path) -> usize {
+    stats_lines_so_far(run)
+        .iter()
+        .filter(|l| l.get("adapt").is_none())
+        .count()
+}
+
 /// Iterations logged in a run's stats.jsonl (the adaptive steps' lines left out).
 fn logged(run: &std::path::Path) -> Vec<serde_json::Value> {
     stats_lines(run)

@@ -186,7 +186,7 @@ fn spawn_training(
         .spawn()
         .unwrap();
     let t0 = std::time::Instant::now();
-    while logged(run).len() < 2 {
+    while logged_so_far(run) < 2 {
         assert!(t0.elapsed().as_secs() < 300, "training did not start");
         std::thread::sleep(std::time::Duration::from_millis(100));
     }
