@@ -212,6 +212,7 @@ mod export_bench;
 mod features;
 mod field;
 mod import;
+mod inputs;
 mod outputs;
 mod resume_signals;
 mod view;
