@@ -4,7 +4,10 @@
 use crate::common;
 
 use common::Rng;
-use svraster::eval::ssim::{gaussian_window, ssim as ssim_cpu, ssim_grad as ssim_grad_cpu, C1, C2};
+use svraster::eval::ssim::{
+    gaussian_window, ssim as ssim_cpu, ssim_grad as ssim_grad_cpu, ssim_grad_margin, ssim_margin,
+    C1, C2,
+};
 use svraster::gpu::{Buffer, Context, Memory};
 use svraster::train::ssim::Ssim;
 
@@ -38,7 +41,12 @@ fn max_abs(v: &[[f64; 3]]) -> f64 {
 fn cpu_gradient_matches_finite_differences() {
     let mut rng = Rng(0x5513_0001);
     let mut worst = 0.0f64;
-    for &(w, h) in &[(1, 1), (3, 2), (2, 3), (5, 4), (1, 9), (13, 17), (12, 12)] {
+    // Margin 5 is "valid" SSIM (12×12 and 13×17 have window centres inside; the smaller
+    // ones fall back to every pixel).
+    for (&(w, h), margin) in [(1, 1), (3, 2), (2, 3), (5, 4), (1, 9), (13, 17), (12, 12)]
+        .iter()
+        .flat_map(|s| [(s, 0), (s, 5)])
+    {
         let n = w * h;
         for trial in 0..2 {
             // Multiples of 2^-20, so x ± 2^-14 is exact in f32 (a symmetric step).
@@ -53,7 +61,7 @@ fn cpu_gradient_matches_finite_differences() {
             } else {
                 noisy_copy(&mut rng, &x, 0.1)
             };
-            let grad = ssim_grad_cpu(&x, &y, w, h);
+            let grad = ssim_grad_margin(&x, &y, w, h, margin);
             let scale = max_abs(&grad);
             assert!(scale > 0.0);
             let mut err = 0.0f64;
@@ -66,7 +74,9 @@ fn cpu_gradient_matches_finite_differences() {
                     xm[p][c] -= step;
                     let denom = xp[p][c] as f64 - xm[p][c] as f64;
                     assert_eq!(denom, 2.0 * step as f64);
-                    let fd = (ssim_cpu(&xp, &y, w, h) - ssim_cpu(&xm, &y, w, h)) / denom;
+                    let fd = (ssim_margin(&xp, &y, w, h, margin)
+                        - ssim_margin(&xm, &y, w, h, margin))
+                        / denom;
                     err = err.max((fd - grad[p][c]).abs());
                 }
             }
@@ -74,7 +84,7 @@ fn cpu_gradient_matches_finite_differences() {
             worst = worst.max(rel);
             assert!(
                 rel <= 5e-6,
-                "{w}×{h} trial {trial}: |fd − grad| = {err:e} vs max |grad| {scale:e}"
+                "{w}×{h} margin {margin} trial {trial}: |fd − grad| = {err:e} vs max |grad| {scale:e}"
             );
         }
     }
@@ -182,11 +192,23 @@ fn scipy_pair() -> (Vec<[f32; 3]>, Vec<[f32; 3]>, usize, usize) {
 }
 const SCIPY_SSIM: f64 = 0.917_704_355_233_145_6;
 
+/// The pair's "valid" SSIM (window centres 5 pixels from every border), from the torch
+/// `fused_ssim` of ../shared/gpu/svr/stubs (F.conv2d, zero padding, then the 5-pixel
+/// crop SVRaster's `padding="valid"` asks for), in float64:
+/// `fused_ssim(x[None], y[None], padding="valid", train=False)` = 0.8321439993519721
+/// (its "same" value, 0.9177043552331444, is scipy's above).
+const TORCH_VALID_SSIM: f64 = 0.832_143_999_351_972_1;
+
 #[test]
 fn cpu_matches_independent_scipy_value() {
     let (x, y, w, h) = scipy_pair();
     let v = ssim_cpu(&x, &y, w, h);
     assert!((v - SCIPY_SSIM).abs() <= 1e-13, "{v} vs scipy {SCIPY_SSIM}");
+    let v = ssim_margin(&x, &y, w, h, 5);
+    assert!(
+        (v - TORCH_VALID_SSIM).abs() <= 1e-13,
+        "{v} vs torch {TORCH_VALID_SSIM}"
+    );
 }
 
 // ---------------------------------------------------------------------------------
@@ -264,7 +286,14 @@ fn gpu_matches_cpu_reference() {
         (3, 2),
         (257, 3),
     ];
-    for (i, &(w, h)) in sizes.iter().enumerate() {
+    for (i, (&(w, h), valid)) in sizes
+        .iter()
+        .flat_map(|s| [(s, false), (s, true)])
+        .enumerate()
+    {
+        // "valid" SSIM: the window centres 5 pixels from every border only.
+        ssim.set_valid(valid);
+        let margin = if valid { 5 } else { 0 };
         for trial in 0..2 {
             let n = w * h;
             let x = random_image(&mut rng, n);
@@ -273,8 +302,8 @@ fn gpu_matches_cpu_reference() {
             } else {
                 noisy_copy(&mut rng, &x, 0.15)
             };
-            let want_v = ssim_cpu(&x, &y, w, h);
-            let want_g = ssim_grad_cpu(&x, &y, w, h);
+            let want_v = ssim_margin(&x, &y, w, h, margin);
+            let want_g = ssim_grad_margin(&x, &y, w, h, margin);
             let weight = if i % 2 == 0 { -0.8f32 } else { 2.5f32 };
             let gscale = max_abs(&want_g) * weight.abs() as f64;
             let g0: Vec<f32> = (0..3 * n)
@@ -288,7 +317,8 @@ fn gpu_matches_cpu_reference() {
             let dv = (run.value - want_v).abs();
             let dg = rel_err(&run.delta, &scaled);
             eprintln!(
-                "{w}×{h} trial {trial}: ssim {want_v:.6} |Δvalue| {dv:.2e} grad rel {dg:.2e}"
+                "{w}×{h} valid {valid} trial {trial}: ssim {want_v:.6} |Δvalue| {dv:.2e} \
+                 grad rel {dg:.2e}"
             );
             worst_v = worst_v.max(dv);
             worst_g = worst_g.max(dg);

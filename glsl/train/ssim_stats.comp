@@ -4,7 +4,10 @@
 // partial derivatives A = ∂S/∂mu_x, B = ∂S/∂E[x²], Cm = ∂S/∂E[xy] (written to planes
 // dst[c*3 + {0,1,2}]), and one partial sum of S per workgroup (partials[group], from
 // subgroup sums added by one invocation, no float atomics; the host adds the partials
-// up in f64). Thread per (channel, pixel).
+// up in f64). Thread per (channel, pixel). With margin > 0, only the window centres at
+// least `margin` pixels from every border count ("valid" SSIM, SVRaster's
+// fused_ssim(..., padding="valid")): the others add nothing to the sum and have A = B =
+// Cm = 0, so no gradient flows from them.
 #include "common.glsl"
 layout(local_size_x = 256) in;
 
@@ -14,6 +17,8 @@ layout(push_constant) uniform Push {
     F32s partials;  // one float per workgroup
     uint width;
     uint height;
+    uint margin;
+    uint pad;
     float gauss[12];
 } pc;
 
@@ -57,6 +62,13 @@ void main() {
         float A = 2.0 * my * (Cs - L) * inv + 2.0 * mx * S * (1.0 / D2 - 1.0 / D1);
         float B = -S / D2;
         float Cm = 2.0 * L * inv;
+        uint mg = pc.margin;
+        if (row < mg || row + mg >= H || col < mg || col + mg >= W) {
+            S = 0.0;
+            A = 0.0;
+            B = 0.0;
+            Cm = 0.0;
+        }
         uint o = 3u * c * npix + p;
         pc.dst.v[o] = A;
         pc.dst.v[o + npix] = B;

@@ -143,30 +143,83 @@ fn check_cpu_dims(x: &[[f32; 3]], y: &[[f32; 3]], width: usize, height: usize) {
 /// (`width`×`height`, row-major). Separable, O(H·W·11). Panics if the sizes do not match
 /// or are zero.
 pub fn ssim(x: &[[f32; 3]], y: &[[f32; 3]], width: usize, height: usize) -> f64 {
+    ssim_margin(x, y, width, height, 0)
+}
+
+/// The window centres counted with `margin` (those at least `margin` pixels from every
+/// border; every pixel when the image is too small for any): (margin used, count per
+/// channel).
+fn centres(width: usize, height: usize, margin: usize) -> (usize, usize) {
+    if width <= 2 * margin || height <= 2 * margin {
+        return (0, width * height);
+    }
+    (margin, (width - 2 * margin) * (height - 2 * margin))
+}
+
+fn inside(p: usize, width: usize, height: usize, margin: usize) -> bool {
+    let (row, col) = (p / width, p % width);
+    row >= margin && row + margin < height && col >= margin && col + margin < width
+}
+
+/// [`ssim`] averaged over the window centres at least `margin` pixels from every border:
+/// 5 is "valid" SSIM (SVRaster's `fused_ssim(..., padding="valid")`; the GPU's
+/// `Ssim::set_valid`), 0 every pixel.
+pub fn ssim_margin(
+    x: &[[f32; 3]],
+    y: &[[f32; 3]],
+    width: usize,
+    height: usize,
+    margin: usize,
+) -> f64 {
     check_cpu_dims(x, y, width, height);
+    let (margin, n) = centres(width, height, margin);
     let g = gaussian_window();
     let sum: f64 = (0..3)
         .map(|c| {
             Channel::new(x, y, c, width, height, &g)
                 .terms()
-                .map(|t| t.0)
+                .enumerate()
+                .filter(|(p, _)| inside(*p, width, height, margin))
+                .map(|(_, t)| t.0)
                 .sum::<f64>()
         })
         .sum();
-    sum / (3 * width * height) as f64
+    sum / (3 * n) as f64
 }
 
 /// f64 reference gradient d(mean SSIM)/dx, interleaved like x. Separable, O(H·W·11).
 /// Panics if the sizes do not match or are zero.
 pub fn ssim_grad(x: &[[f32; 3]], y: &[[f32; 3]], width: usize, height: usize) -> Vec<[f64; 3]> {
+    ssim_grad_margin(x, y, width, height, 0)
+}
+
+/// The gradient of [`ssim_margin`].
+pub fn ssim_grad_margin(
+    x: &[[f32; 3]],
+    y: &[[f32; 3]],
+    width: usize,
+    height: usize,
+    margin: usize,
+) -> Vec<[f64; 3]> {
     check_cpu_dims(x, y, width, height);
+    let (margin, count) = centres(width, height, margin);
     let g = gaussian_window();
     let n = width * height;
-    let inv_m = 1.0 / (3 * n) as f64;
+    let inv_m = 1.0 / (3 * count) as f64;
     let mut out = vec![[0.0; 3]; n];
     for c in 0..3 {
         let ch = Channel::new(x, y, c, width, height, &g);
-        let terms: Vec<_> = ch.terms().collect();
+        let terms: Vec<_> = ch
+            .terms()
+            .enumerate()
+            .map(|(p, t)| {
+                if inside(p, width, height, margin) {
+                    t
+                } else {
+                    (0.0, 0.0, 0.0, 0.0)
+                }
+            })
+            .collect();
         let blur_of = |f: fn(&(f64, f64, f64, f64)) -> f64| -> Vec<f64> {
             let plane: Vec<f64> = terms.iter().map(f).collect();
             blur(&plane, width, height, &g)

@@ -126,6 +126,12 @@ pub struct TrainConfig {
     /// Loss weights and their windows.
     pub lambda_mse: f32,
     pub lambda_ssim: f32,
+    /// SSIM averaged over the window centres whose whole 11×11 window lies in the image
+    /// ("valid", SVRaster's `fused_ssim(..., padding="valid")`, loss_utils.py:58-61), and
+    /// its gradient, instead of over every pixel with zero padding (off; docs/PARITY.md,
+    /// SSIM). The logged `ssim` is the one trained.
+    #[serde(default)]
+    pub ssim_valid: bool,
     pub lambda_t: f32,
     /// The inside term mean(T²) on the transmittance left after the model (the
     /// reference's `lambda_T_inside`): with background shells every ray should end in
@@ -298,6 +304,7 @@ impl Default for TrainConfig {
             deterministic: false,
             lambda_mse: 1.0,
             lambda_ssim: 0.02,
+            ssim_valid: false,
             lambda_t: 0.1,
             lambda_t_inside: 0.0,
             lambda_dist: 0.0,

@@ -238,6 +238,7 @@ impl Trainer {
         let mom = Self::moments(ctx, &scene)?;
         let views = TrainViews::upload(ctx, train, TrainViews::default_chunk_bytes(ctx))?;
         let schedule = cfg.schedule();
+        let ssim_valid = cfg.ssim_valid;
         let mut tv = Tv::with_reduction(ctx, reduction)?;
         tv.set_form(cfg.tv_form);
         let mut backward = Backward::with_reduction(ctx, reduction)?;
@@ -254,7 +255,11 @@ impl Trainer {
             mom,
             renderer,
             backward,
-            ssim: Ssim::new(ctx)?,
+            ssim: {
+                let mut s = Ssim::new(ctx)?;
+                s.set_valid(ssim_valid);
+                s
+            },
             adam: Adam::new(ctx)?,
             tv,
             loss: PixelLoss::new(ctx)?,

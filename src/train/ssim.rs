@@ -83,6 +83,8 @@ struct StatsPush {
     partials: u64,
     width: u32,
     height: u32,
+    margin: u32,
+    pad: u32,
     gauss: [f32; 12],
 }
 push_constants!(TRAIN_SSIM_STATS, StatsPush);
@@ -137,7 +139,9 @@ pub struct Ssim {
     grad: Kernel,
     gauss: [f32; 12],
     scratch: Option<Scratch>,
-    /// (partial sums written, M = 3HW) of the last recorded call.
+    /// Window centres within this many pixels of a border are left out ([`Ssim::set_valid`]).
+    margin: u32,
+    /// (partial sums written, M: the window centres counted) of the last recorded call.
     last: Mutex<Option<(usize, u64)>>,
 }
 
@@ -156,8 +160,27 @@ impl Ssim {
             grad: Kernel::new(ctx, &kernels::TRAIN_SSIM_GRAD)?,
             gauss,
             scratch: None,
+            margin: 0,
             last: Mutex::new(None),
         })
+    }
+
+    /// "valid" SSIM (`true`; SVRaster's `fused_ssim(..., padding="valid")`): the mean of
+    /// S over the window centres whose whole 11×11 window lies in the image, i.e. at
+    /// least 5 pixels from every border, and the gradient of that mean. `false` (the
+    /// default): the zero-padded "same" SSIM, the mean over every pixel. An image with an
+    /// edge of 10 pixels or fewer has no such centre and is measured "same".
+    pub fn set_valid(&mut self, valid: bool) {
+        self.margin = if valid { 5 } else { 0 };
+    }
+
+    /// The window centres' margin and count M for a width×height image.
+    fn centres(&self, width: u32, height: u32) -> (u32, u64) {
+        let m = self.margin;
+        if width <= 2 * m || height <= 2 * m {
+            return (0, 3 * width as u64 * height as u64);
+        }
+        (m, 3 * (width - 2 * m) as u64 * (height - 2 * m) as u64)
     }
 
     /// Allocates scratch for width×height (grows; no-op if big enough). Growing drops
@@ -251,8 +274,8 @@ impl Ssim {
                 )))
             }
         };
-        let m = 3 * pixels;
-        let groups = m.div_ceil(WG);
+        let (margin, m) = self.centres(width, height);
+        let groups = (3 * pixels).div_ceil(WG);
         let groups32 = u32::try_from(groups)
             .map_err(|_| Error::Invalid(format!("SSIM image {width}×{height} is too large")))?;
         let max_x = self.ctx.info().max_compute_work_group_count[0];
@@ -281,6 +304,8 @@ impl Ssim {
                 partials: scratch.partials.address(),
                 width,
                 height,
+                margin,
+                pad: 0,
                 gauss,
             },
             grid,
