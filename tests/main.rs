@@ -18,6 +18,7 @@ mod host;
 mod loss;
 mod mesh;
 mod optim;
+mod parity;
 mod properties;
 mod raster;
 #[allow(clippy::needless_range_loop)]

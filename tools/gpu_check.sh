@@ -11,7 +11,9 @@
 # Steps (each capped so later ones still run; outputs go to $OUT as they are made):
 #   1. Vulkan info; SVRaster's CUDA build, then its small fixture model (300 iterations,
 #      1/4 size, its own test renders: $OUT/svr_tiny.tgz, for
-#      `cli import::svraster_s_own_renders_match_ours` with SVRASTER_SVR_FIXTURE)
+#      `cli import::svraster_s_own_renders_match_ours` with SVRASTER_SVR_FIXTURE), and the
+#      step-level parity fixtures with its CUDA kernels (tools/parity_fixtures.sh:
+#      $OUT/parity_fixtures.tgz, for tests/fixtures/parity/)
 #   2. the test binaries (4 at a time, 6 threads each) while that builds
 #   3. bench sort 2^24 (auto, reduce-then-scan s256 and s128, direct pass, 40 bits, spin limits 64 and 10^6, histogram
 #      workgroups uncapped and 256, look-back windows 1 and 8, back-off 64 and 512 ALU
@@ -23,7 +25,7 @@
 #   5. SVRaster on the same data and card, 6 000 iterations (timed alone)
 #   6. with what is left: the same training per VARIANT (e.g.
 #      straight:colour_clamp_grad=straight), eval
-# $OUT: run.log (everything), res.tgz (logs, JSON, stats), svr_tiny.tgz.
+# $OUT: run.log (everything), res.tgz (logs, JSON, stats), svr_tiny.tgz, parity_fixtures.tgz.
 # A dry run of the flow on any machine: SKIP_TESTS=1 ITERS=60 OUT=/tmp/o bash tools/gpu_check.sh .gpu
 # (on lavapipe with small benches, so that the trainings run too: SORT_N=262144
 # SORT_SMALL=65536 BENCH_TRAIN='4 4' SKIP_SVR=1; at 8 lanes the 16-lane passes c256/s256
@@ -77,6 +79,15 @@ if [ -n "${SVR:-}" ]; then
     find . -path '*test*renders*' -name '*.png' | head -20 | xargs -r cp --parents -t $X/svr_tiny/
     cp config.yaml $X/svr_tiny/ 2>/dev/null)
   (cd $X && tar czf "$O/svr_tiny.tgz" svr_tiny svr_tiny.log 2>/dev/null)
+  # The step-level parity fixtures with SVRaster's own CUDA kernels (issue 60;
+  # tests/fixtures/parity/README.md): → $OUT/parity_fixtures.tgz, to commit.
+  stamp "parity fixtures (SVRaster's CUDA kernels)"
+  PYX=python3; [ -x /opt/torch/.venv/bin/python3 ] && PYX=/opt/torch/.venv/bin/python3
+  SSIMP=/tmp/svr_build/fused_ssim_site; [ -d $SSIMP ] || SSIMP=
+  PYTHONPATH=/tmp/site${SSIMP:+:$SSIMP}:$G/svr/stubs PY=$PYX SVR=$G/svr/src BIN=$B \
+    timeout $(cap 90) bash "$P/tools/parity_fixtures.sh" $X/parity cuda > $X/parity_fixtures.log 2>&1
+  echo "parity fixtures rc=$?"; grep "^parity_fixtures\|^step\|^adapt" $X/parity_fixtures.log
+  (cd $X && tar czf "$O/parity_fixtures.tgz" parity parity_fixtures.log 2>/dev/null)
 fi
 stamp bench
 # The card's clocks while the benches run (bench sort heats the device before each

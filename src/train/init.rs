@@ -285,6 +285,7 @@ impl Trainer {
             go_seq: 0,
             counting: false,
             adam_base: 0,
+            next_draw: None,
         })
     }
 

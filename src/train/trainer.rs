@@ -143,6 +143,8 @@ pub struct Trainer {
     /// The iteration Adam's bias-correction count starts from (0, or the last adaptive
     /// step with `reset_adam_at_adapt`).
     pub(super) adam_base: u32,
+    /// The next iteration's view and supersampling, fixed ([`Trainer::set_next_draw`]).
+    pub(super) next_draw: Option<(usize, f32)>,
 }
 
 impl Trainer {
@@ -333,6 +335,49 @@ impl Trainer {
             .unwrap_or(0)
     }
 
+    /// Fixes the next iteration's training view and supersampling factor, as replaying
+    /// another trainer's iteration needs (the step-level parity test, tests/parity.rs).
+    /// The random draws are still taken, so the iterations after it draw as before.
+    pub fn set_next_draw(&mut self, view: usize, supersample: f32) -> Result<()> {
+        if view >= self.cams.len() || supersample.is_nan() || supersample < 1.0 {
+            return Err(Error::Invalid(format!(
+                "next draw: view {view} of {} training views, supersampling {supersample} \
+                 (must be ≥ 1)",
+                self.cams.len()
+            )));
+        }
+        self.next_draw = Some((view, supersample));
+        Ok(())
+    }
+
+    /// Sets Adam's step count: the next iteration is its step `next` (≥ 1), as an
+    /// optimiser made afresh `next − 1` iterations ago counts (SVRaster re-creates its
+    /// optimiser at every adaptive step).
+    pub fn set_adam_count(&mut self, next: u32) -> Result<()> {
+        if next == 0 || next > self.iter + 1 {
+            return Err(Error::Invalid(format!(
+                "Adam step {next} cannot come next after {} iterations",
+                self.iter
+            )));
+        }
+        self.adam_base = self.iter + 1 - next;
+        Ok(())
+    }
+
+    /// The gradients of the last iteration, in the host layouts: grid-point densities,
+    /// sh0 (`[N][3]`), shs (`[N][coeffs][3]`), and the subdivision priority accumulated
+    /// since the last adaptive step (`[N]`).
+    pub fn gradients(&mut self) -> Result<[Vec<f32>; 4]> {
+        self.flush()?;
+        let g = &self.grads;
+        Ok([
+            self.ctx.download(&g.geo, 0, g.grid_points as usize)?,
+            self.ctx.download(&g.sh0, 0, 3 * g.voxels as usize)?,
+            g.download_shs(&self.ctx)?,
+            self.ctx.download(&g.priority, 0, g.voxels as usize)?,
+        ])
+    }
+
     fn next_view(&mut self) -> usize {
         if self.order.is_empty() {
             self.order = (0..self.cams.len()).collect();
@@ -358,8 +403,11 @@ impl Trainer {
     /// supersampling factor, the SH degree, the loss weights.
     fn plan_iteration(&mut self) -> IterPlan {
         let it = self.iter;
-        let view = self.next_view();
-        let ss = self.draw_ss(it);
+        let mut view = self.next_view();
+        let mut ss = self.draw_ss(it);
+        if let Some((v, s)) = self.next_draw.take() {
+            (view, ss) = (v, s);
+        }
         let cfg = &self.cfg;
         let after = |from: u32, value: f32| if it >= from { value } else { 0.0 };
         let w = IterWeights {
