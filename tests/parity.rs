@@ -433,34 +433,48 @@ fn training_steps_match_svraster_tensor_by_tensor() {
     let mut failures = Vec::new();
     for dir in fixtures() {
         let fx = Fixture::load(&dir);
-        let mut cfg = TrainConfig::preset("synthetic").unwrap();
-        for kv in [
-            "lr_geo=0.025",
-            "lr_colour_scale_max=1",
-            "lambda_r=0",
-            "lambda_r_colour=0.01",
-            "alpha_clamp_grad=straight",
-            "clamp_rgb_loss=true",
-            "t_losses_at_render=true",
-            "r_target_bilinear=true",
-            "tv_form=l1",
-            "lambda_dist=0.1",
-            "dist_contracted=true",
-            "subdivide_all_until=0.05",
-            "stats_ss=1.5",
-            "stats_visible=weight",
-            "ssim_valid=true",
-        ] {
-            cfg.set(kv).unwrap();
-        }
-        cfg.iters = 20_000;
+        // SVRaster's rules, the preset that names them; no exception.
+        let mut cfg = TrainConfig::preset("svraster-synthetic").unwrap();
+        // The fixture's run: its length and SH degree (set on both sides); every other
+        // value of its config must be what the preset models.
         let c = &fx.meta["config"];
-        let num = |g: &str, k: &str| c[g][k].as_f64().unwrap() as f32;
+        let num = |g: &str, k: &str| c[g][k].as_f64().unwrap();
+        cfg.iters = num("procedure", "n_iter") as u32;
         cfg.sh_degree = c["model"]["sh_degree"].as_u64().unwrap() as u32;
-        cfg.lambda_ssim = num("regularizer", "lambda_ssim");
-        cfg.lambda_t = num("regularizer", "lambda_T_concen");
-        cfg.lambda_r_colour = num("regularizer", "lambda_R_concen");
-        cfg.lambda_tv = num("regularizer", "lambda_tv_density");
+        let s = cfg.schedule();
+        for (g, k, ours) in [
+            ("regularizer", "lambda_ssim", cfg.lambda_ssim as f64),
+            ("regularizer", "lambda_T_concen", cfg.lambda_t as f64),
+            ("regularizer", "lambda_R_concen", cfg.lambda_r_colour as f64),
+            ("regularizer", "lambda_tv_density", cfg.lambda_tv as f64),
+            ("regularizer", "lambda_dist", cfg.lambda_dist as f64),
+            ("regularizer", "ss_aug_max", cfg.ss as f64),
+            ("optimizer", "geo_lr", s.lr_geo as f64),
+            ("optimizer", "sh0_lr", s.lr_sh0 as f64),
+            ("optimizer", "shs_lr", s.lr_shs as f64),
+            ("optimizer", "optim_beta1", cfg.beta1 as f64),
+            ("optimizer", "optim_beta2", cfg.beta2 as f64),
+            ("optimizer", "optim_eps", cfg.eps as f64),
+            ("procedure", "prune_thres_init", cfg.prune_thres_init as f64),
+            (
+                "procedure",
+                "prune_thres_final",
+                cfg.prune_thres_final as f64,
+            ),
+            ("procedure", "subdivide_prop", cfg.subdivide_percent),
+            (
+                "procedure",
+                "subdivide_samp_thres",
+                cfg.subdivide_min_rate as f64 / 2.0,
+            ),
+        ] {
+            let theirs = num(g, k);
+            assert!(
+                (ours - theirs).abs() <= 1e-6 * theirs.abs().max(1e-12),
+                "{}: SVRaster's {g}.{k} is {theirs}, the preset's {ours}",
+                dir.display()
+            );
+        }
         // The layout after an adaptive step must be the same voxels and grid points.
         let rows = replay(&fx, cfg, &|what| match what {
             "voxels" | "layout" | "grid_points" => 0.0,

@@ -248,6 +248,15 @@ pub struct TrainConfig {
     /// there; docs/PARITY.md item 4). Off by default: moments are carried to the new
     /// layout (a research switch, unmeasured at the paper's resolution).
     pub reset_adam_at_adapt: bool,
+    /// SVRaster's way of scaling a schedule to the run's length (train.py:584-609 with
+    /// `--sche_mult iters/20 000`), for the `svraster` preset: all three learning rates
+    /// times 20 000/iters (no caps, either way), and what train.py leaves unscaled at
+    /// its iterations — the SH degree up at iterations 1000, 2000, 3000 (`iteration %
+    /// 1000`, train.py:177), supersampling from iteration 1001 (:188) — with the
+    /// distortion loss from its own `dist_from` iteration on (`>=`, 1-based). Off: every
+    /// milestone a fraction of the run, the rates as `lr_geo_used`/`lr_colour_used` say.
+    #[serde(default)]
+    pub svraster_schedule: bool,
     /// Supersampling of the adaptive step's statistics frames: the max weights of
     /// pruning are those of its rays, the sampling intervals stay those of the views'
     /// own resolution. 1: ours; SVRaster renders them at the model's `ss` (1.5;
@@ -337,6 +346,7 @@ impl Default for TrainConfig {
             subdivide_min_rate: 2.0,
             subdivide_all_until: 0.0,
             reset_adam_at_adapt: false,
+            svraster_schedule: false,
             stats_ss: 1.0,
             stats_visible: StatsVisible::Entries,
             max_level: crate::scene::MAX_LEVEL,
@@ -521,6 +531,9 @@ impl TrainConfig {
     pub fn lr_geo_used(&self) -> f32 {
         // The schedule's length: an extended run keeps its rate.
         let n = self.schedule_iters.unwrap_or(self.iters);
+        if self.svraster_schedule {
+            return self.lr_geo * self.sche_factor(n);
+        }
         let f = (REFERENCE_ITERS as f64 / n.max(1) as f64).sqrt();
         self.lr_geo * f.clamp(1.0, self.lr_geo_scale_max.max(1.0) as f64) as f32
     }
@@ -537,8 +550,17 @@ impl TrainConfig {
     /// caps the factor at 1/0.3.
     pub fn lr_colour_used(&self) -> (f32, f32) {
         let n = self.schedule_iters.unwrap_or(self.iters);
+        if self.svraster_schedule {
+            let f = self.sche_factor(n);
+            return (self.lr_sh0 * f, self.lr_shs * f);
+        }
         let f = (REFERENCE_ITERS as f64 / n.max(1) as f64)
             .clamp(1.0, self.lr_colour_scale_max.max(1.0) as f64) as f32;
         (self.lr_sh0 * f, self.lr_shs * f)
+    }
+
+    /// SVRaster's rate factor 1/sche_mult = 20 000/n (train.py:588-589).
+    fn sche_factor(&self, n: u32) -> f32 {
+        (REFERENCE_ITERS as f64 / n.max(1) as f64) as f32
     }
 }

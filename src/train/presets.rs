@@ -45,6 +45,16 @@ pub const PRESETS: &[(&str, &str)] = &[
          and on the mean depth from 50 % of the run",
     ),
     (
+        "svraster-synthetic",
+        "SVRaster's own NeRF-synthetic training, rule for rule (cfg/synthetic_nerf.yaml at \
+         f0e7fa0; the step-level test tests/parity.rs replays its steps with this preset): \
+         the synthetic preset with its 20 000-iteration rates scaled by its sche_mult rule, \
+         its unscaled SH and supersampling milestones, valid-padded SSIM, colour-only \
+         R_concen, L1 TV, straight-through clamps, distortion 0.1 from half the run, \
+         subdivide-all at its first adaptive step, statistics at ss 1.5 over the voxels \
+         given weight",
+    ),
+    (
         "quick",
         "short runs on CPU devices: the synthetic configuration without supersampling \
          (the density learning rate scales with the run length in every preset: 0.1 up to \
@@ -157,6 +167,10 @@ impl TrainConfig {
                     c.lambda_normal_dmean = 0.001;
                 }
             }
+            "svraster-synthetic" => {
+                c = Self::preset("synthetic")?;
+                c.apply_svraster_rules();
+            }
             "quick" => {
                 c.grid_level = 6;
                 c.ss = 1.0;
@@ -170,6 +184,32 @@ impl TrainConfig {
             }
         }
         Ok(c)
+    }
+
+    /// SVRaster's rules over the synthetic preset (the `svraster-synthetic` preset): each
+    /// line a switch whose own entry in config.rs and docs/PARITY.md says what it is.
+    fn apply_svraster_rules(&mut self) {
+        self.svraster_schedule = true;
+        self.lr_geo = 0.025;
+        self.lr_sh0 = 0.01;
+        self.lr_shs = 0.00025;
+        self.lr_colour_scale_max = 1.0;
+        self.ssim_valid = true;
+        self.clamp_rgb_loss = true;
+        self.lambda_r = 0.0;
+        self.lambda_r_colour = 0.01;
+        self.colour_clamp_grad = ClampGrad::Straight;
+        self.alpha_clamp_grad = ClampGrad::Straight;
+        self.t_losses_at_render = true;
+        self.r_target_bilinear = true;
+        self.tv_form = super::config::TvForm::L1;
+        self.lambda_dist = 0.1;
+        self.dist_contracted = true;
+        self.subdivide_all_until = 0.05;
+        self.reset_adam_at_adapt = true;
+        self.stats_ss = 1.5;
+        self.stats_visible = super::config::StatsVisible::Weight;
+        self.subdivide_min_rate = 1.0;
     }
 
     /// The name a `--preset` stands for: a bare speed modifier (`fast-train`,

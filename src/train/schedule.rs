@@ -56,7 +56,13 @@ impl TrainConfig {
         // sh_every = 0: every degree from the first iteration (the reference's
         // sh_degree_init = 3).
         for d in 1..=self.sh_degree {
-            sh.push(at(self.sh_every * d as f64, n));
+            sh.push(if self.svraster_schedule && self.sh_every > 0.0 {
+                // train.py:177: up before the render of 1-based iteration 1000·d, i.e.
+                // from our 0-based iteration 1000·d − 1, whatever the run's length.
+                (1000 * d - 1).min(n)
+            } else {
+                at(self.sh_every * d as f64, n)
+            });
         }
         let mut checkpoints = Vec::new();
         if self.checkpoint_every > 0.0 {
@@ -130,9 +136,19 @@ impl TrainConfig {
             lr_shs,
             adapt,
             sh_degree_up: sh,
-            ss_from: at(self.ss_from, n),
+            // train.py:188: supersampling for 1-based iterations > 1000.
+            ss_from: if self.svraster_schedule {
+                1000.min(n)
+            } else {
+                at(self.ss_from, n)
+            },
             lr_decay_at: at(self.lr_decay_at, n),
-            dist_from: at(self.dist_from, n),
+            // train.py:199: `iteration >= dist_from`, 1-based.
+            dist_from: if self.svraster_schedule {
+                at(self.dist_from, n).saturating_sub(1)
+            } else {
+                at(self.dist_from, n)
+            },
             normal_dmed_from: at(self.normal_dmed_from, n),
             normal_dmean_from: at(self.normal_dmean_from, n),
             tv_until: at(self.tv_until, n),

@@ -197,6 +197,43 @@ fn schedule_is_fractions_of_the_run() {
     assert!((c.lr_colour_used().0 - 0.01 / 0.3).abs() < 1e-6);
 }
 
+/// The `svraster-synthetic` preset scales a run as SVRaster's `--sche_mult iters/20 000`
+/// does (train.py:584-609): every rate by 20 000/iters, SH and supersampling at its
+/// unscaled iterations, the distortion loss from its 1-based `dist_from`.
+#[test]
+fn svraster_preset_scales_as_sche_mult() {
+    let mut c = TrainConfig::preset("svraster-synthetic").unwrap();
+    for (iters, sh, dist_from) in [
+        (20_000u32, vec![999, 1999, 2999], 9_999u32),
+        (6_000, vec![999, 1999, 2999], 2_999),
+        (2_000, vec![999, 1999, 2000], 999),
+    ] {
+        c.iters = iters;
+        let s = c.schedule();
+        let m = iters as f32 / 20_000.0;
+        for (got, want) in [
+            (s.lr_geo, 0.025 / m),
+            (s.lr_sh0, 0.01 / m),
+            (s.lr_shs, 0.00025 / m),
+        ] {
+            assert!(
+                (got / want - 1.0).abs() < 1e-6,
+                "{iters}: rate {got} vs {want}"
+            );
+        }
+        assert_eq!(s.sh_degree_up, sh, "{iters}");
+        assert_eq!(s.ss_from, 1000, "{iters}");
+        assert_eq!(s.dist_from, dist_from, "{iters}");
+        // SVRaster's adaptive steps: every 1000·m from 1000·m, the first subdividing all.
+        let every = (1000.0 * m).round() as u32;
+        assert_eq!(s.adapt[0].iter, every, "{iters}");
+        assert!(s.adapt[0].subdivide_all && !s.adapt[1].subdivide_all);
+    }
+    // Longer than 20 000: the rates fall as sche_mult > 1 makes them.
+    c.iters = 40_000;
+    assert!((c.schedule().lr_geo - 0.0125).abs() < 1e-9);
+}
+
 #[test]
 fn training_smoke_test_on_the_demo_scene() {
     // CI's training check: a few hundred iterations on the procedural scene must lift
