@@ -145,15 +145,21 @@ struct Row {
 fn replay(fx: &Fixture, cfg: TrainConfig, bounds: &dyn Fn(&str) -> f64) -> Vec<Row> {
     let ctx = context();
     let steps = fx.meta["steps"].as_array().unwrap();
-    let white = fx.meta["config"]["model"]["white_background"]
-        .as_bool()
-        .unwrap();
+    let model = &fx.meta["config"]["model"];
+    let white = model["white_background"].as_bool().unwrap();
+    let black = model["black_background"].as_bool().unwrap();
+    // Neither: each frame's own mean colour (renderer.py:158-159), as the import says.
     let bg = if white { [1.0f32; 3] } else { [0.0; 3] };
+    assert_eq!(
+        cfg.background_frame_mean,
+        !white && !black,
+        "the preset's background"
+    );
     let scene = import_svraster(
         &fx.dir.join("model.pt"),
         &SvrasterImport {
             background: bg,
-            background_frame_mean: false,
+            background_frame_mean: !white && !black,
             supersample: 1.0,
         },
     )
@@ -262,6 +268,9 @@ fn replay(fx: &Fixture, cfg: TrainConfig, bounds: &dyn Fn(&str) -> f64) -> Vec<R
             && s["render_size"][1].as_u64() == s["camera"]["height"].as_u64();
         if let (Some(v), true) = (theirs["T_concen"].as_f64(), same_size) {
             push(format!("{i}.T_concen"), &[l.t_concentration], &[v]);
+        }
+        if let (Some(v), true) = (theirs["T_inside"].as_f64(), same_size) {
+            push(format!("{i}.T_inside"), &[l.t_inside], &[v]);
         }
         // After an adaptive step the layout is the new one: that step's gradients and
         // update are those of the old layout, checked through the step's outcome
@@ -434,7 +443,12 @@ fn training_steps_match_svraster_tensor_by_tensor() {
     for dir in fixtures() {
         let fx = Fixture::load(&dir);
         // SVRaster's rules, the preset that names them; no exception.
-        let mut cfg = TrainConfig::preset("svraster-synthetic").unwrap();
+        let preset = match fx.meta["cfg_file"].as_str() {
+            Some("cfg/synthetic_nerf.yaml") => "svraster-synthetic",
+            Some("cfg/mipnerf360.yaml") => "svraster-real",
+            other => panic!("{}: no preset models SVRaster's {other:?}", dir.display()),
+        };
+        let mut cfg = TrainConfig::preset(preset).unwrap();
         // The fixture's run: its length and SH degree (set on both sides); every other
         // value of its config must be what the preset models.
         let c = &fx.meta["config"];
@@ -445,6 +459,7 @@ fn training_steps_match_svraster_tensor_by_tensor() {
         for (g, k, ours) in [
             ("regularizer", "lambda_ssim", cfg.lambda_ssim as f64),
             ("regularizer", "lambda_T_concen", cfg.lambda_t as f64),
+            ("regularizer", "lambda_T_inside", cfg.lambda_t_inside as f64),
             ("regularizer", "lambda_R_concen", cfg.lambda_r_colour as f64),
             ("regularizer", "lambda_tv_density", cfg.lambda_tv as f64),
             ("regularizer", "lambda_dist", cfg.lambda_dist as f64),

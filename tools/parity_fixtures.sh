@@ -5,7 +5,7 @@
 #
 # usage: tools/parity_fixtures.sh OUTDIR [cpu|cuda]
 #   cpu  (default): SVRaster's Python with tools/svraster_cpu/_C.py as its kernels (a dry
-#        run; runs here). Folders OUTDIR/demo_synthetic_cpu, OUTDIR/demo_synthetic_late_cpu.
+#        run; runs here). Folders OUTDIR/demo_{synthetic,synthetic_late,real_late}_cpu.
 #   cuda: SVRaster's own CUDA extension, on a GPU machine after ../shared/gpu/svr/run_svr.sh
 #        build (svraster_cuda in SVR_SITE=/tmp/site); folders ..._cuda. tools/gpu_check.sh
 #        runs this there.
@@ -54,3 +54,7 @@ dump() { # name, dump arguments...
 dump demo_synthetic --iteration 1001 --views 3,7 --ss 1.0,1.25
 # Late: distortion on, TV off, then the adaptive step at 15 000 (prune and subdivide).
 dump demo_synthetic_late --iteration 14999 --views 2,5 --ss 1.3,1.1 --adapt
+# Real captures' rules (cfg/mipnerf360.yaml) on the same model and scene: each frame's
+# mean colour behind the model, the inside loss, no T concentration; late, with the
+# adaptive step.
+dump demo_real_late --cfg cfg/mipnerf360.yaml --iteration 14999 --views 2,5 --ss 1.3,1.1 --adapt

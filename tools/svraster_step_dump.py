@@ -407,6 +407,7 @@ def main():
         "tool": "tools/svraster_step_dump.py", "argv": sys.argv[1:],
         "kernels": "cpu stand-in (tools/svraster_cpu/_C.py)" if args.cpu else "svraster_cuda",
         "svraster_commit": _upstream_commit(svr), "torch": torch.__version__,
+        "cfg_file": args.cfg, "sche_mult": args.sche_mult,
         "config": {k: dict(v) for k, v in cfg.items()},
         "model": os.path.basename(model), "voxels": int(n0 if adapt else voxel_model.num_voxels),
         "steps": steps, "adapt": adapt, "tensors": sorted(tensors),

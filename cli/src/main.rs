@@ -142,8 +142,9 @@ enum Command {
         /// with --resume).
         #[arg(long)]
         downscale: Option<f64>,
-        /// Configuration preset: synthetic, real, forward, object, mesh, quick or
-        /// svraster-synthetic (SVRaster's own rules, docs/PARITY.md), optionally
+        /// Configuration preset: synthetic, real, forward, object, mesh, quick,
+        /// svraster-synthetic or svraster-real (SVRaster's own rules, docs/PARITY.md),
+        /// optionally
         /// with a speed modifier: `fast-train` or `fast-render` alone (on the data's preset)
         /// or appended, e.g. real-fast-render (docs/PERFORMANCE.md "Speed ↔ accuracy") (default: the
         /// data's — Blender: synthetic, COLMAP/nerfstudio: real, LLFF: forward, NeuS:

@@ -55,6 +55,14 @@ pub const PRESETS: &[(&str, &str)] = &[
          given weight",
     ),
     (
+        "svraster-real",
+        "SVRaster's own Mip-NeRF 360 training, rule for rule (cfg/mipnerf360.yaml at \
+         f0e7fa0): the real preset with the svraster-synthetic rules that are not \
+         synthetic-only — each frame's own mean colour behind the model, inside loss \
+         0.01, no T concentration, every SH degree from the start, voxels stopping at \
+         two pixels",
+    ),
+    (
         "quick",
         "short runs on CPU devices: the synthetic configuration without supersampling \
          (the density learning rate scales with the run length in every preset: 0.1 up to \
@@ -170,6 +178,23 @@ impl TrainConfig {
             "svraster-synthetic" => {
                 c = Self::preset("synthetic")?;
                 c.apply_svraster_rules();
+                // cfg/synthetic_nerf.yaml: subdivide_all_until 1000, samp_thres 0.5.
+                c.subdivide_all_until = 0.05;
+                c.subdivide_min_rate = 1.0;
+            }
+            "svraster-real" => {
+                c = Self::preset("real")?;
+                c.apply_svraster_rules();
+                // cfg/mipnerf360.yaml over config.py: neither white nor black (each
+                // frame's mean colour, renderer.py:158-159), lambda_T_inside 0.01, no
+                // T concentration, sh_degree_init 3, subdivide_samp_thres 1.0.
+                c.background_from_photos = false;
+                c.background_frame_mean = true;
+                c.lambda_t = 0.0;
+                c.lambda_t_inside = 0.01;
+                c.sh_every = 0.0;
+                c.subdivide_all_until = 0.0;
+                c.subdivide_min_rate = 2.0;
             }
             "quick" => {
                 c.grid_level = 6;
@@ -186,7 +211,7 @@ impl TrainConfig {
         Ok(c)
     }
 
-    /// SVRaster's rules over the synthetic preset (the `svraster-synthetic` preset): each
+    /// SVRaster's rules common to its configurations (the `svraster-*` presets): each
     /// line a switch whose own entry in config.rs and docs/PARITY.md says what it is.
     fn apply_svraster_rules(&mut self) {
         self.svraster_schedule = true;
@@ -205,11 +230,9 @@ impl TrainConfig {
         self.tv_form = super::config::TvForm::L1;
         self.lambda_dist = 0.1;
         self.dist_contracted = true;
-        self.subdivide_all_until = 0.05;
         self.reset_adam_at_adapt = true;
         self.stats_ss = 1.5;
         self.stats_visible = super::config::StatsVisible::Weight;
-        self.subdivide_min_rate = 1.0;
     }
 
     /// The name a `--preset` stands for: a bare speed modifier (`fast-train`,
