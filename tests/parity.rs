@@ -155,15 +155,6 @@ fn replay(fx: &Fixture, cfg: TrainConfig, bounds: &dyn Fn(&str) -> f64) -> Vec<R
         !white && !black,
         "the preset's background"
     );
-    let scene = import_svraster(
-        &fx.dir.join("model.pt"),
-        &SvrasterImport {
-            background: bg,
-            background_frame_mean: !white && !black,
-            supersample: 1.0,
-        },
-    )
-    .unwrap();
     // The training views: every camera where the fixture lists them (its adaptive step's
     // statistics render them all; only the steps' own views are trained on, and only
     // they carry their photo — the others' images are never read), else the steps' own.
@@ -205,10 +196,25 @@ fn replay(fx: &Fixture, cfg: TrainConfig, bounds: &dyn Fn(&str) -> f64) -> Vec<R
         points: Vec::new(),
         sphere: None,
     };
+    let mut rows = Vec::new();
+    if let Some(init) = fx.meta["init"].as_object() {
+        compare_init(fx, init, cfg.clone(), &train, bounds, &mut rows);
+    }
+    if steps.is_empty() {
+        return rows;
+    }
+    let scene = import_svraster(
+        &fx.dir.join("model.pt"),
+        &SvrasterImport {
+            background: bg,
+            background_frame_mean: !white && !black,
+            supersample: 1.0,
+        },
+    )
+    .unwrap();
     let first = steps[0]["iteration"].as_u64().unwrap() as u32;
     let mut t = Trainer::new(&ctx, cfg, &train, Some(scene)).unwrap();
     t.skip_to(first - 1);
-    let mut rows = Vec::new();
     let mut push = |what: String, ours: &[f64], theirs: &[f64]| {
         let (rel, max_abs) = rel_err(ours, theirs);
         if std::env::var("PARITY_DEBUG").is_ok() {
@@ -327,6 +333,76 @@ fn replay(fx: &Fixture, cfg: TrainConfig, bounds: &dyn Fn(&str) -> f64) -> Vec<R
         compare_adapt(fx, a, &mut t, &mut push);
     }
     rows
+}
+
+/// SVRaster's initial model (train.py's model_init on the training cameras) against
+/// ours from the same main region: the layout as a set of voxels, the counts, the values.
+fn compare_init(
+    fx: &Fixture,
+    init: &serde_json::Map<String, serde_json::Value>,
+    mut cfg: TrainConfig,
+    train: &Dataset,
+    bounds: &dyn Fn(&str) -> f64,
+    rows: &mut Vec<Row>,
+) {
+    let c = &fx.meta["config"];
+    let b: Vec<Vec<f64>> = serde_json::from_value(init["bounding"].clone()).unwrap();
+    // The main region as SVRaster chose it (decide_main_bounding, a rule of its own).
+    cfg.bound = "box".into();
+    cfg.center = std::array::from_fn(|k| (0.5 * (b[0][k] + b[1][k])) as f32);
+    cfg.extent = (0..3).map(|k| b[1][k] - b[0][k]).fold(0.0, f64::max) as f32;
+    cfg.grid_level = c["init"]["init_n_level"].as_u64().unwrap() as u32;
+    cfg.outside_level = c["bounding"]["outside_level"].as_u64().unwrap() as u32;
+    cfg.init_out_ratio = c["init"]["init_out_ratio"].as_f64().unwrap() as f32;
+    cfg.geo_init = c["init"]["geo_init"].as_f64().unwrap() as f32;
+    cfg.sh0_init = c["init"]["sh0_init"].as_f64().unwrap() as f32;
+    let ctx = context();
+    let mut t = Trainer::new(&ctx, cfg, train, None).unwrap();
+    let m = t.scene().unwrap();
+    let mut push = |what: &str, ours: &[f64], theirs: &[f64]| {
+        let (rel, max_abs) = rel_err(ours, theirs);
+        rows.push(Row {
+            what: format!("init.{what}"),
+            rel,
+            max_abs,
+            bound: bounds(what),
+        });
+    };
+    let extent = init["scene_extent"].as_f64().unwrap();
+    push("extent", &[m.extent as f64], &[extent]);
+    let (path, level) = (fx.get("init.octpath"), fx.get("init.octlevel"));
+    let theirs: std::collections::HashSet<(u64, u8)> = (0..path.data.len())
+        .map(|v| (path.data[v] as u64, level.data[v] as u8))
+        .collect();
+    let ours: std::collections::HashSet<(u64, u8)> = m
+        .octpath
+        .iter()
+        .copied()
+        .zip(m.octlevel.iter().copied())
+        .collect();
+    push("voxels", &[ours.len() as f64], &[theirs.len() as f64]);
+    let missing = theirs.symmetric_difference(&ours).count();
+    push("layout", &[missing as f64 / theirs.len() as f64], &[0.0]);
+    push(
+        "grid_points",
+        &[m.grid_keys.len() as f64],
+        &[init["grid_points"].as_f64().unwrap()],
+    );
+    // model_init's constants: geo_init, rgb2shzero(sh0_init), shs_init.
+    let v = &init["values"];
+    let one = |k: &str| {
+        let a = v[k].as_array().unwrap();
+        assert_eq!(a.len(), 1, "SVRaster's initial {k} is not one value: {a:?}");
+        a[0].as_f64().unwrap()
+    };
+    let ours_geo: Vec<f64> = m.geo.iter().map(|&g| g as f64).collect();
+    push("geo", &ours_geo, &vec![one("geo"); ours_geo.len()]);
+    let ours_sh0 = flat3(&m.sh0);
+    push("sh0", &ours_sh0, &vec![one("sh0"); ours_sh0.len()]);
+    let ours_shs = f64s(&m.shs);
+    if !ours_shs.is_empty() {
+        push("shs", &ours_shs, &vec![one("shs"); ours_shs.len()]);
+    }
 }
 
 /// The adaptive step's outcome: the counts, the layout (as sets of voxels and of grid
@@ -492,7 +568,7 @@ fn training_steps_match_svraster_tensor_by_tensor() {
         }
         // The layout after an adaptive step must be the same voxels and grid points.
         let rows = replay(&fx, cfg, &|what| match what {
-            "voxels" | "layout" | "grid_points" => 0.0,
+            "voxels" | "layout" | "grid_points" | "extent" => 0.0,
             _ => 1e-3,
         });
         failures.extend(report(&fx, &rows));

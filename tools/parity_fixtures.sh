@@ -5,7 +5,7 @@
 #
 # usage: tools/parity_fixtures.sh OUTDIR [cpu|cuda]
 #   cpu  (default): SVRaster's Python with tools/svraster_cpu/_C.py as its kernels (a dry
-#        run; runs here). Folders OUTDIR/demo_{synthetic,synthetic_late,real_late}_cpu.
+#        run; runs here). Folders OUTDIR/demo_{synthetic,synthetic_late,real_late,init}_cpu.
 #   cuda: SVRaster's own CUDA extension, on a GPU machine after ../shared/gpu/svr/run_svr.sh
 #        build (svraster_cuda in SVR_SITE=/tmp/site); folders ..._cuda. tools/gpu_check.sh
 #        runs this there.
@@ -39,14 +39,15 @@ if [ "$MODEL" = train ]; then
   python3 "$ROOT/tools/svraster_checkpoint.py" "$W/run/model.safetensors" "$W/model.pt"
   MODEL=$W/model.pt
 fi
-dump() { # name, dump arguments...
+dump() { # name, dump arguments... (--init: no model; --model otherwise)
   local d=$OUT/${1}_$KIND; shift
   [ -e "$d" ] && { echo "parity_fixtures: $d exists; remove it first" >&2; exit 1; }
+  local from=(--model "$MODEL"); [ "$1" = --init ] && from=()
   "$PY" "$ROOT/tools/svraster_step_dump.py" $FLAG --svr "$SVR" --data "$W/demo/data" \
-    --model "$MODEL" --out "$W/dump_$(basename "$d")" --set sh_degree=1 "$@" 2>&1 |
+    "${from[@]}" --out "$W/dump_$(basename "$d")" --set sh_degree=1 "$@" 2>&1 |
     grep -v -i "warning\|^  " || true
   [ -f "$W/dump_$(basename "$d")/step.json" ] || { echo "parity_fixtures: the dump for $d failed" >&2; exit 1; }
-  mkdir -p "$d"; cp "$MODEL" "$d/model.pt"; mv "$W/dump_$(basename "$d")"/* "$d/"
+  mkdir -p "$d"; [ ${#from[@]} -gt 0 ] && cp "$MODEL" "$d/model.pt"; mv "$W/dump_$(basename "$d")"/* "$d/"
   echo "parity_fixtures: $d ($(du -sh "$d" | cut -f1))"
 }
 # Early: the first iterations after the first adaptive step (Adam fresh, then its second
@@ -58,3 +59,8 @@ dump demo_synthetic_late --iteration 14999 --views 2,5 --ss 1.3,1.1 --adapt
 # mean colour behind the model, the inside loss, no T concentration; late, with the
 # adaptive step.
 dump demo_real_late --cfg cfg/mipnerf360.yaml --iteration 14999 --views 2,5 --ss 1.3,1.1 --adapt
+# SVRaster's initial model (model_init on the training cameras, level-4 grid). The same with
+# cfg/mipnerf360.yaml's 5 background shell levels differs from ours (docs/PARITY.md,
+# step-level comparison): `dump demo_real_init --init --cfg cfg/mipnerf360.yaml --set
+# init_n_level=4` writes it, for that work.
+dump demo_init --init --set init_n_level=4

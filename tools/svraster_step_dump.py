@@ -2,12 +2,15 @@
 """Runs training steps of the official SVRaster on a fixed model and writes every tensor
 they compute, for the step-level parity test (tests/parity/, issue 60).
 
-    svraster_step_dump.py --data DATASET --model MODEL.pt --out DIR
+    svraster_step_dump.py --data DATASET (--model MODEL.pt | --init) --out DIR
         [--svr SVRASTER_SRC] [--cfg cfg/synthetic_nerf.yaml] [--sche_mult M]
         [--iteration N] [--views 3,7] [--ss 1.0,1.2] [--adapt] [--cpu] [--set key=value ...]
 
 It loads MODEL.pt (SVRaster's own checkpoint layout, SVInOut.save; tools/svraster_checkpoint.py
-writes one from a model of ours) into SVRaster's SparseVoxelModel, builds SVRaster's data
+writes one from a model of ours) into SVRaster's SparseVoxelModel, or with --init builds
+SVRaster's initial model as train.py does (main-region bound, model_init on the training
+cameras) and writes its layout as init.{octpath,octlevel} (step.json "init": the bound,
+scene centre and extents, the parameters' values; and every training camera), builds SVRaster's data
 pack, config, optimizer and learning-rate schedule exactly as train.py does, and runs
 len(--views) consecutive iterations from iteration N, each on the given training view and
 supersampling factor (train.py draws those at random; here they are fixed). Each
@@ -48,13 +51,17 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 def parse_args():
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", required=True, help="dataset folder SVRaster reads (NeRF JSON or COLMAP)")
-    p.add_argument("--model", required=True, help="SVRaster checkpoint (.pt) to start from")
+    p.add_argument("--model", help="SVRaster checkpoint (.pt) to start from")
+    p.add_argument("--init", action="store_true",
+                   help="start from SVRaster's own initial model instead (train.py's model_init "
+                        "on the data's training cameras), and write it as init.*")
     p.add_argument("--out", required=True, help="output folder (made; must not exist)")
     p.add_argument("--svr", default=os.path.join(HERE, "..", "..", "shared", "gpu", "svr", "src"))
     p.add_argument("--cfg", default="cfg/synthetic_nerf.yaml", help="config file, relative to --svr")
     p.add_argument("--sche_mult", type=float, default=1.0)
     p.add_argument("--iteration", type=int, default=1001, help="1-based iteration of the first step")
-    p.add_argument("--views", default="0", help="training view index per step, comma-separated")
+    p.add_argument("--views", default=None,
+                   help="training view index per step, comma-separated (default 0; none with --init)")
     p.add_argument("--ss", default="", help="supersampling per step (default 1.0 each); "
                    "train.py uses 1.0 up to iteration 1000")
     p.add_argument("--adapt", action="store_true", help="also run the adaptive step after the last one")
@@ -171,16 +178,21 @@ def main():
     svr = os.path.abspath(args.svr)
     if not os.path.isfile(os.path.join(svr, "train.py")):
         die(f"{svr} is not an SVRaster checkout (no train.py); pass --svr")
+    if (args.model is None) == (not args.init):
+        die("give either --model MODEL.pt or --init")
     for what, path in (("--data", args.data), ("--model", args.model)):
-        if not os.path.exists(path):
+        if path is not None and not os.path.exists(path):
             die(f"{what} {path} does not exist")
     if os.path.exists(args.out):
         die(f"--out {args.out} exists; name a new folder")
-    views = [int(v) for v in args.views.split(",")]
+    if args.views is None:
+        args.views = "" if args.init else "0"
+    views = [int(v) for v in args.views.split(",") if v != ""]
     ss = [float(s) for s in args.ss.split(",")] if args.ss else [1.0] * len(views)
     if len(ss) != len(views):
         die(f"--ss has {len(ss)} values for {len(views)} --views")
-    data, model = os.path.abspath(args.data), os.path.abspath(args.model)
+    data = os.path.abspath(args.data)
+    model = os.path.abspath(args.model) if args.model else None
     out = os.path.abspath(args.out)
 
     tmp = install_cpu_stand_in(svr) if args.cpu else None
@@ -192,6 +204,7 @@ def main():
     from src.utils.system_utils import seed_everything
     from src.utils import loss_utils
     from src.dataloader.data_pack import DataPack
+    from src.utils.bounding_utils import decide_main_bounding
     from src.sparse_voxel_model import SparseVoxelModel
     import svraster_cuda
 
@@ -220,10 +233,43 @@ def main():
         if not 0 <= v < len(tr_cams):
             die(f"--views {v}: the data has {len(tr_cams)} training views")
 
+    class Store(dict):
+        # Copies at once: Adam and the next step update parameters and moments in place.
+        def __setitem__(self, k, v):
+            super().__setitem__(k, v.detach().clone())
+
     voxel_model = SparseVoxelModel(
         n_samp_per_vox=cfg.model.n_samp_per_vox, sh_degree=cfg.model.sh_degree, ss=cfg.model.ss,
         white_background=cfg.model.white_background, black_background=cfg.model.black_background)
-    voxel_model.load(model)
+    tensors = Store()
+    init = None
+    if args.init:
+        # train.py:70-103, as it is.
+        bounding = decide_main_bounding(
+            bound_mode=cfg.bounding.bound_mode, forward_dist_scale=cfg.bounding.forward_dist_scale,
+            pcd_density_rate=cfg.bounding.pcd_density_rate, bound_scale=cfg.bounding.bound_scale,
+            tr_cams=tr_cams, pcd=data_pack.point_cloud, suggested_bounding=data_pack.suggested_bounding)
+        voxel_model.model_init(
+            bounding=bounding, outside_level=cfg.bounding.outside_level,
+            init_n_level=cfg.init.init_n_level, init_out_ratio=cfg.init.init_out_ratio,
+            sh_degree_init=cfg.init.sh_degree_init, geo_init=cfg.init.geo_init,
+            sh0_init=cfg.init.sh0_init, shs_init=cfg.init.shs_init, cameras=tr_cams)
+        tensors["init.octpath"] = voxel_model.octpath
+        tensors["init.octlevel"] = voxel_model.octlevel.to(torch.int64)
+        # The parameters are constants (model_init's torch.full): recorded as values.
+        vals = {n: torch.unique(getattr(voxel_model, a).detach()).cpu().tolist()
+                for n, a in (("geo", "_geo_grid_pts"), ("sh0", "_sh0"), ("shs", "_shs"))}
+        init = {"bounding": torch.as_tensor(bounding).tolist(),
+                "scene_center": voxel_model.scene_center.tolist(),
+                "scene_extent": float(voxel_model.scene_extent),
+                "inside_extent": float(voxel_model.inside_extent),
+                "active_sh_degree": voxel_model.active_sh_degree,
+                "voxels": voxel_model.num_voxels, "grid_points": voxel_model.num_grid_pts,
+                "values": vals}
+        print(f"init: {voxel_model.num_voxels} voxels, {voxel_model.num_grid_pts} grid points, "
+              f"scene {init['scene_center']} extent {init['scene_extent']}")
+    else:
+        voxel_model.load(model)
 
     def camera_json(cam):
         return {"width": cam.image_width, "height": cam.image_height,
@@ -246,12 +292,7 @@ def main():
     for _ in range(args.iteration - 1):
         scheduler.step()
 
-    class Store(dict):
-        # Copies at once: Adam and the next step update parameters and moments in place.
-        def __setitem__(self, k, v):
-            super().__setitem__(k, v.detach().clone())
-
-    tensors, steps = Store(), []
+    steps = []
     for i, (view, s) in enumerate(zip(views, ss)):
         iteration = args.iteration + i
         if iteration % 1000 == 0:
@@ -409,9 +450,10 @@ def main():
         "svraster_commit": _upstream_commit(svr), "torch": torch.__version__,
         "cfg_file": args.cfg, "sche_mult": args.sche_mult,
         "config": {k: dict(v) for k, v in cfg.items()},
-        "model": os.path.basename(model), "voxels": int(n0 if adapt else voxel_model.num_voxels),
+        "model": os.path.basename(model) if model else None, "init": init,
+        "voxels": int(n0 if adapt else voxel_model.num_voxels),
         "steps": steps, "adapt": adapt, "tensors": sorted(tensors),
-        "train_cameras": [camera_json(c) for c in tr_cams] if adapt else None,
+        "train_cameras": [camera_json(c) for c in tr_cams] if adapt or init else None,
     }
     with open(os.path.join(out, "step.json"), "w") as f:
         json.dump(meta, f, indent=1, default=str)
