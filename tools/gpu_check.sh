@@ -5,8 +5,9 @@
 # ../shared/gpu/README.md, plus the examples the suite runs). On the device, from the
 # checkout's root, carry .gpu:
 #   bash tools/gpu_check.sh .gpu [SECONDS=570] [VARIANT...]
-# VARIANT: NAME:key=value[,key=value...] (a bare key=value[,...] is named variantN), one
-# training each, in order, while time is left; SKIP_SVR=1 leaves SVRaster out (its build,
+# VARIANT: NAME:key=value[,key=value...] (a bare key=value[,...] is named variantN; the key
+# `preset` picks the preset, e.g. svr:preset=svraster-synthetic), one training each, in
+# order, while time is left; SKIP_SVR=1 leaves SVRaster out (its build,
 # fixture and run: ~170 s more for the variants).
 # Steps (each capped so later ones still run; outputs go to $OUT as they are made):
 #   1. Vulkan info; SVRaster's CUDA build, then its small fixture model (300 iterations,
@@ -136,7 +137,7 @@ PY
 pack
 train() { # name, settings...
   local v=$1; shift; stamp "train $v"; local s=$(date +%s) S=()
-  for kv in "$@"; do S+=(--set "$kv"); done
+  for kv in "$@"; do case $kv in preset=*) S+=(--preset "${kv#preset=}") ;; *) S+=(--set "$kv") ;; esac; done
   timeout -s INT $(cap 170 $RES) "$B" train /tmp/lego --out /tmp/runs/$v --iters $ITERS "${S[@]}" > $X/train_$v.log 2>&1
   echo "train $v rc=$? wall $(( $(date +%s) - s ))s"; tail -1 $X/train_$v.log
   cp /tmp/runs/$v/stats.jsonl $X/stats_$v.jsonl 2>/dev/null

@@ -7,13 +7,14 @@
 #
 # usage: tools/parity_lavapipe.sh OUTDIR DOWNSCALE NAME[:key=value[,key=value...]]...
 #   e.g. tools/parity_lavapipe.sh /tmp/par 4 base clamp:clamp_rgb_loss=true
+#   (preset=NAME among them trains with --preset NAME instead of the synthetic preset)
 # env:   ITERS (3000), DATA (../shared/data/lego_400), BIN (target/release/svraster)
 # A variant whose evaluation is already in OUTDIR is not trained again, so a stopped
 # run resumes, and a later call can add variants to the same baseline. The table goes
 # to stdout and OUTDIR/summary.md; each run's log, model and eval JSON stay in OUTDIR.
 set -euo pipefail
 if [ $# -lt 3 ]; then
-  sed -n '2,13p' "$0" | sed 's/^# \{0,1\}//'
+  sed -n '2,14p' "$0" | sed 's/^# \{0,1\}//'
   exit 2
 fi
 OUT=$1; DS=$2; shift 2
@@ -27,7 +28,9 @@ mkdir -p "$OUT"
 NAMES=()
 for v in "$@"; do
   name=${v%%:*}; sets=()
-  case $v in *:*) IFS=, read -ra kv <<< "${v#*:}"; for s in "${kv[@]}"; do sets+=(--set "$s"); done ;; esac
+  case $v in *:*) IFS=, read -ra kv <<< "${v#*:}"; for s in "${kv[@]}"; do
+    case $s in preset=*) sets+=(--preset "${s#preset=}") ;; *) sets+=(--set "$s") ;; esac
+  done ;; esac
   NAMES+=("$name")
   if [ -s "$OUT/$name.eval.json" ]; then
     echo "$name: evaluated already ($OUT/$name.eval.json)"; continue

@@ -128,8 +128,9 @@ pub struct TrainConfig {
     pub lambda_ssim: f32,
     /// SSIM averaged over the window centres whose whole 11×11 window lies in the image
     /// ("valid", SVRaster's `fused_ssim(..., padding="valid")`, loss_utils.py:58-61), and
-    /// its gradient, instead of over every pixel with zero padding (off; docs/PARITY.md,
-    /// SSIM). The logged `ssim` is the one trained.
+    /// its gradient, instead of over every pixel with zero padding (off by default; on in
+    /// the synthetic presets, measured there; docs/PARITY.md, SSIM). The logged `ssim` is
+    /// the one trained.
     #[serde(default)]
     pub ssim_valid: bool,
     pub lambda_t: f32,
