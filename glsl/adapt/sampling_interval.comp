@@ -2,6 +2,8 @@
 // Minimum sampling interval per voxel over views (paper §3.2.2, Eq. 7b), one invocation
 // per voxel, recorded after a completed frame whose FrameParams block it reads:
 //   minint[v] = min(minint[v], max(z, near) / fx)
+// (with skip_near, the initial layout's rule, SVRaster's mark_max_samp_rate: a view whose
+// near plane holds the voxel's centre, z <= near, does not show it at all)
 // with z the camera depth of the voxel centre ((centre - origin) · forward, i.e. the
 // lookat row of w2c applied to the camera-relative centre `cs.xyz`) and fx the focal
 // length in pixels of the view at its output size: the frame's render-resolution fx
@@ -24,6 +26,8 @@ layout(push_constant) uniform Push {
     U32s maxw;    // the accumulated max weights (f32 bits; with view_w)
     uint count;   // voxels of the accumulator (the frame's cfg.x must not exceed it)
     float fx_scale;
+    uint skip_near;
+    uint pad;
 } pc;
 
 void main() {
@@ -39,6 +43,7 @@ void main() {
     }
     vec3 c = vec3(P.cs.v[4u * v], P.cs.v[4u * v + 1u], P.cs.v[4u * v + 2u]);
     float z = dot(P.w2c[2].xyz, c);
+    if (pc.skip_near != 0u && z <= P.near) return;
     float interval = max(z, P.near) / (P.intr.x * pc.fx_scale);
     if (interval < pc.minint.v[v]) pc.minint.v[v] = interval;
 }

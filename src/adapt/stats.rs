@@ -111,6 +111,8 @@ struct IntervalPush {
     maxw: u64,
     count: u32,
     fx_scale: f32,
+    skip_near: u32,
+    pad: u32,
 }
 push_constants!(ADAPT_SAMPLING_INTERVAL, IntervalPush);
 
@@ -286,7 +288,7 @@ impl StatsPass {
                 renderer.record(cmd, scene, &cams[i], &opts, None)?;
                 let check = renderer.record_checks(cmd, None)?;
                 if scene.voxels > 0 {
-                    me.record_fold(cmd, &renderer.last_frame()?, per_view)?;
+                    me.record_fold(cmd, &renderer.last_frame()?, per_view, false)?;
                 }
                 Ok(check)
             })?;
@@ -320,7 +322,7 @@ impl StatsPass {
                 renderer.render_to_device(scene, &cams[j], &opts, None)?;
                 if scene.voxels > 0 {
                     let frame = renderer.last_frame()?;
-                    ctx.submit_and_wait(|cmd| self.record_fold(cmd, &frame, per_view))?;
+                    ctx.submit_and_wait(|cmd| self.record_fold(cmd, &frame, per_view, false))?;
                 }
             }
             queued = next;
@@ -330,7 +332,10 @@ impl StatsPass {
 
     /// Folds one view into the min-interval accumulator only (the max weights are left
     /// as they are): runs the frame's preprocess, not its sort or compositing, so it costs
-    /// a small fraction of [`StatsPass::add_view`]. The initialisation's visibility test.
+    /// a small fraction of [`StatsPass::add_view`]. The initialisation's visibility test:
+    /// a view does not show a voxel whose centre is within its near plane (SVRaster's
+    /// `mark_max_samp_rate`, `zdist > near`), where the adaptive steps' fold clamps the
+    /// depth to it.
     pub fn add_view_intervals(
         &mut self,
         renderer: &mut Renderer,
@@ -387,17 +392,21 @@ impl StatsPass {
         cmd: vk::CommandBuffer,
         frame: &FrameGeometry,
     ) -> Result<()> {
-        self.record_fold(cmd, frame, false)
+        self.record_fold(cmd, frame, false, true)
     }
 
     /// The interval fold; with `per_view`, only voxels with a weight in the frame's
     /// own max-weight target (the view-weight buffer) count as shown, and their weights
-    /// are folded into the max-weight accumulator.
+    /// are folded into the max-weight accumulator. With `skip_near` a view does not show
+    /// a voxel whose centre is within its near plane (SVRaster's `mark_max_samp_rate`,
+    /// `zdist > near`: the initial layout's rule); without, the depth is clamped to the
+    /// near plane (the adaptive steps').
     fn record_fold(
         &self,
         cmd: vk::CommandBuffer,
         frame: &FrameGeometry,
         per_view: bool,
+        skip_near: bool,
     ) -> Result<()> {
         let (mw, mi) = self.buffers()?;
         let view_w = match per_view {
@@ -412,6 +421,8 @@ impl StatsPass {
             count: self.voxels,
             // The render-resolution fx back to the view's own (exactly 1 unsupersampled).
             fx_scale: (f64::from(frame.out_width) / f64::from(frame.render_width)) as f32,
+            skip_near: u32::from(skip_near),
+            pad: 0,
         };
         self.kernel.dispatch_1d(cmd, &push, self.voxels);
         recorder::barrier(&self.ctx, cmd);
